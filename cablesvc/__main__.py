@@ -1,0 +1,3 @@
+from cablesvc.cli.main import main
+
+raise SystemExit(main())

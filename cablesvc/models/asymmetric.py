@@ -1,0 +1,102 @@
+"""Modified, asymmetric Bouc-Wen model of the wire-rope isolator report (001, Ch 4)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cablesvc.models.base import CableModel, ModelParameterError, ModelState
+from cablesvc.models.boucwen import BoucWenIntegrator
+
+
+@dataclass
+class AsymmetricState(ModelState):
+    x_prev: np.ndarray
+    z: np.ndarray
+
+
+class AsymmetricBoucWen(CableModel):
+    """Modified asymmetric Bouc-Wen model with parameters (b, c, alpha, beta, gamma, n, k1, k2, k3).
+
+    The report 001 (Ch 4, eqs 4.1-4.3, after Ni, Ko & Wong) describes the model as a
+    symmetric Bouc-Wen hysteretic variable z "modulated" by a nonlinear elastic stiffness,
+    with a nonlinear spring force F1(x) and a shaping function F2 that produces the
+    hardening overlap of the loading envelope. Its equation images are lost; the form
+    chosen and implemented here is::
+
+        F  = F1(xi) + F2(xi) z                              [N]
+        F1 = k1 xi + k2 xi^2 + k3 xi^3                      (nonlinear spring, eq 4.3a-b)
+        F2 = b + c xi^2                                     (shaping function, eq 4.3c)
+        z' = alpha xi' - beta |xi'| |z|^(n-1) z - gamma xi' |z|^n        (eq 4.1 / 4.3d)
+
+    with xi = x - x_center. z' is eq 1 of 000 with k_d = alpha, beta_000 = beta,
+    gamma_000 = gamma, so z is bounded by (alpha/(beta+gamma))^(1/n) for beta+gamma > 0
+    (the "finite ultimate value z_max" of 001 Sec 4.1). Why this form gives the features
+    of 001 Sec 3.4:
+
+    * the even term k2 xi^2 (k2 > 0) adds force in tension and removes it in compression:
+      the loop is asymmetric and, relative to the linear part, the asymmetry grows with
+      amplitude (k2 A^2 / (k1 A) ~ A);
+    * the tangent stiffness k1 + 2 k2 xi + 3 k3 xi^2 grows for xi > 0 (hardening in
+      tension) and, for k2 > 0 and small k3, falls for xi < 0 (softening in compression);
+    * once z saturates at +-z_max, F2(xi) z = (b + c xi^2) z_max grows with xi^2 on every
+      loading branch, so loading branches of different amplitudes run on one hardening
+      envelope (the "hardening overlapping loading envelope").
+
+    Units: x, xi [m]; k_i [N/m^i]; b dimensionless, c [1/m^2]; alpha dimensionless in the
+    sense z' = alpha xi' (z then has units of m times alpha's unit: here alpha [N/m] so z
+    is in N... when z is in N F2 is dimensionless); beta, gamma [1/(m N^(n-1))]; n [-].
+    Integrated as :class:`~cablesvc.models.boucwen.BoucWenIntegrator`.
+    """
+
+    name = "asymmetric"
+    param_names = ("b", "c", "alpha", "beta", "gamma", "n", "k1", "k2", "k3", "x_center")
+    defaults = {"x_center": 0.0, "k2": 0.0, "k3": 0.0, "c": 0.0}
+    param_docs = {
+        "b": "constant part of the shaping function F2 [-]", "c": "quadratic part of F2 [1/m^2]",
+        "alpha": "hysteretic stiffness at z = 0 [N/m]", "beta": "shape parameter [1/(m N^(n-1))]",
+        "gamma": "shape parameter [1/(m N^(n-1))]", "n": "smoothness exponent [-]",
+        "k1": "linear stiffness [N/m]", "k2": "quadratic stiffness [N/m^2]", "k3": "cubic stiffness [N/m^3]",
+        "x_center": "elongation where xi = 0 [m]",
+    }
+
+    @classmethod
+    def extra_options(cls):
+        return ("integrator", "substeps")
+
+    def check_params(self):
+        if np.any(self.params["n"] <= 0):
+            raise ModelParameterError("asymmetric: n must be > 0")
+        p = self.params
+        self.integrator = BoucWenIntegrator(
+            self.shape, p["alpha"], p["beta"], p["gamma"], p["n"],
+            self._options.get("integrator", "semi-implicit"), self._options.get("substeps", 1))
+        self._dx = np.empty(self.shape)
+        self._xi = np.empty(self.shape)
+        self._t = np.empty(self.shape)
+        self._s = np.empty(self.shape)
+
+    def create_state(self, x0=0.0, z0=0.0) -> AsymmetricState:
+        return AsymmetricState(x_prev=self._x0(x0), z=np.broadcast_to(np.asarray(z0, float), self.shape).copy())
+
+    def step(self, state: AsymmetricState, x, dt, l0=None):
+        p = self.params
+        np.subtract(x, state.x_prev, self._dx)
+        self.integrator.advance(state.z, self._dx)
+        xi, t, s = self._xi, self._t, self._s
+        np.subtract(x, p["x_center"], xi)
+        # F1 = xi (k1 + xi (k2 + xi k3))
+        np.multiply(xi, p["k3"], t)
+        np.add(t, p["k2"], t)
+        np.multiply(t, xi, t)
+        np.add(t, p["k1"], t)
+        np.multiply(t, xi, t)
+        # F2 z = (b + c xi^2) z
+        np.multiply(xi, xi, s)
+        np.multiply(s, p["c"], s)
+        np.add(s, p["b"], s)
+        np.multiply(s, state.z, s)
+        np.add(t, s, self.force)
+        np.copyto(state.x_prev, x)
+        return self.force
