@@ -1,0 +1,86 @@
+"""Recording format 1 (``/work/shared/spec/recording-format.md``): MCAP and CSV.
+
+``read_recording`` / ``write_recording`` dispatch on the file suffix; ``iter_inputs``
+streams ticks; ``McapRecordingWriter`` writes a live recording tick by tick (plus the
+output topics in ``docs/recording.md``).
+"""
+
+from .csv_io import (
+    POSE_COLUMNS,
+    csv_header,
+    iter_csv_inputs,
+    read_csv,
+    read_csv_metadata,
+    write_csv,
+)
+from .format import (
+    ALARM_JSON_SCHEMA,
+    ALARM_SCHEMA_NAME,
+    ALARMS_TOPIC,
+    FORCES_JSON_SCHEMA,
+    FORCES_SCHEMA_NAME,
+    FORCES_TOPIC,
+    FORMAT_VERSION,
+    INPUT_JSON_SCHEMA,
+    INPUT_SCHEMA_NAME,
+    INPUT_TOPIC,
+    MESSAGE_ENCODING,
+    METADATA_NAME,
+    OUTPUT_TOPICS,
+    SCHEMA_ENCODING,
+    Recording,
+    RecordingError,
+    RecordingTruncatedWarning,
+    Tick,
+    Truncation,
+    iter_inputs,
+    read_metadata,
+    read_recording,
+    write_recording,
+)
+from .mcap_io import (
+    DEFAULT_CHUNK_SIZE,
+    McapRecordingWriter,
+    iter_mcap_inputs,
+    read_mcap,
+    read_mcap_metadata,
+    write_mcap,
+)
+
+__all__ = [
+    "ALARM_JSON_SCHEMA",
+    "ALARM_SCHEMA_NAME",
+    "ALARMS_TOPIC",
+    "DEFAULT_CHUNK_SIZE",
+    "FORCES_JSON_SCHEMA",
+    "FORCES_SCHEMA_NAME",
+    "FORCES_TOPIC",
+    "FORMAT_VERSION",
+    "INPUT_JSON_SCHEMA",
+    "INPUT_SCHEMA_NAME",
+    "INPUT_TOPIC",
+    "MESSAGE_ENCODING",
+    "METADATA_NAME",
+    "OUTPUT_TOPICS",
+    "POSE_COLUMNS",
+    "SCHEMA_ENCODING",
+    "McapRecordingWriter",
+    "Recording",
+    "RecordingError",
+    "RecordingTruncatedWarning",
+    "Tick",
+    "Truncation",
+    "csv_header",
+    "iter_csv_inputs",
+    "iter_inputs",
+    "iter_mcap_inputs",
+    "read_csv",
+    "read_csv_metadata",
+    "read_mcap",
+    "read_mcap_metadata",
+    "read_metadata",
+    "read_recording",
+    "write_csv",
+    "write_mcap",
+    "write_recording",
+]

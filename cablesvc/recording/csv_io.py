@@ -1,0 +1,401 @@
+"""CSV side of recording format 1: :func:`read_csv`, :func:`write_csv`,
+:func:`iter_csv_inputs`.
+
+Layout (spec): optional ``# key: value`` metadata lines, then the header
+``t,seq,x,y,z,qx,qy,qz,qw,l0,l1,...,f0,f1,...,temperature``, then one line per tick.
+Pose columns are empty when a tick has no pose; force columns and ``temperature`` may be
+absent. cablesvc writes ``# robot: <name>`` and ``# format: 1`` first, then the other
+metadata, and floats with ``repr`` (shortest string that reads back to the same double,
+so a round trip is exact). A NaN is written as an empty cell; +-inf as ``inf``/``-inf``.
+
+Reading is by column name (any column order; duplicates and unknown names are errors),
+with ``t``, ``seq`` and ``l0`` required, the seven pose columns all or none, ``f0..`` as
+many as ``l0..``. An empty cell is NaN except in ``t`` and ``seq``. Errors name the line
+(1-based, as an editor shows it) and the column.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Iterator, Optional, TextIO
+
+import numpy as np
+
+from .format import (
+    FORMAT_VERSION,
+    PathArg,
+    Recording,
+    RecordingError,
+    Tick,
+)
+
+POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
+_CABLE_COLUMN = re.compile(r"^([lf])(0|[1-9][0-9]*)$")
+_NAN = math.nan
+
+
+def csv_header(n_cables: int, has_force: bool, has_temperature: bool) -> list[str]:
+    """The column names cablesvc writes, in the spec's order."""
+    cols = ["t", "seq", *POSE_COLUMNS]
+    cols += [f"l{i}" for i in range(n_cables)]
+    if has_force:
+        cols += [f"f{i}" for i in range(n_cables)]
+    if has_temperature:
+        cols.append("temperature")
+    return cols
+
+
+def _check_meta(what: str, text: str, key: bool) -> None:
+    if "\n" in text or "\r" in text:
+        raise ValueError(f"CSV metadata {what} {text!r} contains a line break")
+    if text != text.strip():
+        raise ValueError(f"CSV metadata {what} {text!r} has surrounding spaces (not kept)")
+    if key and (not text or ":" in text):
+        raise ValueError(f"CSV metadata key {text!r} must be non-empty and contain no ':'")
+
+
+def _fmt(v: float) -> str:
+    return "" if v != v else repr(v)
+
+
+def write_csv(path: PathArg, rec: Recording) -> None:
+    """Write ``rec`` as a format-1 CSV file (``rec.extra`` is not written: CSV has no topics)."""
+    problems = rec.shape_problems()
+    if problems:
+        raise ValueError(f"{path}: cannot write recording: " + "; ".join(problems))
+    if not np.isfinite(rec.t).all():
+        raise ValueError(f"{path}: t must be finite at every tick")
+    meta: list[tuple[str, str]] = []
+    if rec.robot:
+        _check_meta("value", rec.robot, key=False)
+        meta.append(("robot", rec.robot))
+    meta.append(("format", str(FORMAT_VERSION)))
+    for k, v in rec.metadata.items():
+        if k in ("robot", "format"):
+            raise ValueError(f"metadata key {k!r} is reserved (robot is Recording.robot)")
+        _check_meta("key", k, key=True)
+        _check_meta("value", v, key=False)
+        meta.append((k, v))
+
+    n, m = rec.n_ticks, rec.n_cables
+    blocks = []
+    if rec.position is not None and rec.orientation is not None:
+        blocks += [rec.position, rec.orientation]
+    else:
+        blocks.append(np.full((n, 7), np.nan))
+    blocks.append(rec.motor_length)
+    if rec.force is not None:
+        blocks.append(rec.force)
+    if rec.temperature is not None:
+        blocks.append(rec.temperature.reshape(n, 1))
+    values = np.hstack(blocks).tolist() if n else []
+    t = rec.t.tolist()
+    seq = rec.seq.tolist()
+    header = csv_header(m, rec.force is not None, rec.temperature is not None)
+    with open(path, "w", encoding="utf-8", newline="\n") as f:
+        for k, v in meta:
+            f.write(f"# {k}: {v}\n")
+        f.write(",".join(header) + "\n")
+        write = f.write
+        for i in range(n):
+            write(f"{t[i]!r},{seq[i]},{','.join(map(_fmt, values[i]))}\n")
+
+
+class _CsvSource:
+    """An open CSV recording: metadata and header parsed, rows streamed."""
+
+    def __init__(self, path: PathArg, robot_cables: Optional[int] = None):
+        self.path = str(path)
+        try:
+            self._f: TextIO = open(path, "r", encoding="utf-8-sig", newline=None)
+        except FileNotFoundError:
+            raise RecordingError(path, "file", "no such file") from None
+        except OSError as e:
+            raise RecordingError(path, "file", f"cannot open: {e.strerror or e}") from None
+        try:
+            self._read_head(robot_cables)
+        except UnicodeDecodeError as e:
+            self._f.close()
+            raise RecordingError(path, "file", f"not a UTF-8 text file: {e}") from None
+        except BaseException:
+            self._f.close()
+            raise
+
+    def close(self) -> None:
+        self._f.close()
+
+    def _err(self, line: int, column: Optional[str], reason: str) -> RecordingError:
+        where = f"line {line}" if column is None else f"line {line}, column {column}"
+        return RecordingError(self.path, where, reason)
+
+    def _read_head(self, robot_cables: Optional[int]) -> None:
+        self.metadata: dict[str, str] = {}
+        lineno = 0
+        header_line: Optional[str] = None
+        for raw in self._f:
+            lineno += 1
+            line = raw.rstrip("\n")
+            stripped = line.strip()
+            if not stripped:
+                continue
+            if stripped.startswith("#"):
+                body = stripped[1:]
+                if ":" in body:
+                    key, value = body.split(":", 1)
+                    key, value = key.strip(), value.strip()
+                    if key:
+                        self.metadata[key] = value
+                        if key == "format" and value != str(FORMAT_VERSION):
+                            raise self._err(
+                                lineno,
+                                None,
+                                f"format {value!r} is not supported: this cablesvc reads "
+                                f"format {FORMAT_VERSION}",
+                            )
+                continue
+            header_line = line
+            break
+        if header_line is None:
+            what = "empty file" if lineno == 0 else "no header line (only metadata/blank lines)"
+            raise RecordingError(
+                self.path, "file" if lineno == 0 else f"line {lineno}", f"{what}: expected "
+                "the header t,seq,x,y,z,qx,qy,qz,qw,l0,...[,f0,...][,temperature]",
+            )
+        self.header_lineno = lineno
+        self.lineno = lineno
+        names = [c.strip() for c in header_line.split(",")]
+        self.names = names
+        self._parse_header(names, lineno, robot_cables)
+
+    def _parse_header(self, names: list[str], h: int, robot_cables: Optional[int]) -> None:
+        index: dict[str, int] = {}
+        ls: dict[int, int] = {}
+        fs: dict[int, int] = {}
+        for j, name in enumerate(names):
+            if name in index:
+                raise self._err(h, name, f"duplicate column (also column {index[name] + 1})")
+            index[name] = j
+            m = _CABLE_COLUMN.match(name)
+            if m:
+                (ls if m.group(1) == "l" else fs)[int(m.group(2))] = j
+            elif name not in ("t", "seq", "temperature") and name not in POSE_COLUMNS:
+                raise self._err(
+                    h,
+                    repr(name) if name else f"{j + 1} (empty name)",
+                    "unknown column; the header is t,seq,x,y,z,qx,qy,qz,qw,l0,l1,...,"
+                    "f0,f1,...,temperature (the first line not starting with '#' must be "
+                    "the header)",
+                )
+        for req in ("t", "seq", "l0"):
+            if req not in index:
+                raise self._err(
+                    h, None, f"missing required column {req!r} (header: {','.join(names)})"
+                )
+        m = len(ls)
+        if sorted(ls) != list(range(m)):
+            gap = min(set(range(m)) - set(ls))
+            raise self._err(h, None, f"missing column 'l{gap}' (have {m} l columns, "
+                            f"up to l{max(ls)})")
+        if fs:
+            if sorted(fs) != list(range(len(fs))):
+                gap = min(set(range(len(fs))) - set(fs))
+                raise self._err(h, None, f"missing column 'f{gap}' (have {len(fs)} f columns, "
+                                f"up to f{max(fs)})")
+            if len(fs) != m:
+                raise self._err(
+                    h,
+                    None,
+                    f"cable count inconsistency: {m} motor-length columns (l0..l{m - 1}) but "
+                    f"{len(fs)} force columns (f0..f{len(fs) - 1})",
+                )
+        if robot_cables is not None and m != robot_cables:
+            raise self._err(
+                h, None, f"{m} motor-length columns but the robot has {robot_cables} cables"
+            )
+        pose_present = [c for c in POSE_COLUMNS if c in index]
+        if pose_present and len(pose_present) != len(POSE_COLUMNS):
+            missing = [c for c in POSE_COLUMNS if c not in index]
+            raise self._err(h, None, f"pose columns {missing} missing (pose needs all of "
+                            f"{','.join(POSE_COLUMNS)}, or none)")
+        self.n_cables = m
+        self.n_fields = len(names)
+        self.seq_col = index["seq"]
+        # Float columns in a fixed order: t, pose (7), l (m), f (m), temperature.
+        order = [index["t"]]
+        self.pose_slice = None
+        if pose_present:
+            self.pose_slice = slice(1, 8)
+            order += [index[c] for c in POSE_COLUMNS]
+        self.l_slice = slice(len(order), len(order) + m)
+        order += [ls[i] for i in range(m)]
+        self.f_slice = None
+        if fs:
+            self.f_slice = slice(len(order), len(order) + m)
+            order += [fs[i] for i in range(m)]
+        self.temp_col = None
+        if "temperature" in index:
+            self.temp_col = len(order)
+            order.append(index["temperature"])
+        self.float_cols = order
+        self.float_names = [names[j] for j in order]
+
+    def rows(self) -> Iterator[tuple[int, list[float]]]:
+        """Yield ``(seq, floats)`` per tick; floats in the order of ``float_cols``."""
+        n_fields = self.n_fields
+        seq_col = self.seq_col
+        cols = list(zip(self.float_cols, self.float_names))
+        lineno = self.lineno
+        try:
+            for raw in self._f:
+                lineno += 1
+                line = raw.rstrip("\n")
+                if not line.strip():
+                    continue
+                if line.lstrip().startswith("#"):
+                    raise self._err(
+                        lineno, None, "'#' line after the header (metadata lines must come "
+                        "before it)"
+                    )
+                parts = line.split(",")
+                if len(parts) != n_fields:
+                    raise self._err(
+                        lineno,
+                        None,
+                        f"wrong number of fields: {len(parts)}, the header (line "
+                        f"{self.header_lineno}) has {n_fields}",
+                    )
+                s = parts[seq_col]
+                try:
+                    seq = int(s)
+                except ValueError:
+                    what = "empty (seq is required)" if not s.strip() else (
+                        f"{s.strip()!r} is not an integer")
+                    raise self._err(lineno, "seq", what) from None
+                vals = []
+                for j, name in cols:
+                    s = parts[j]
+                    try:
+                        vals.append(float(s))
+                    except ValueError:
+                        if s.strip():
+                            raise self._err(
+                                lineno, name, f"{s.strip()!r} is not a number"
+                            ) from None
+                        vals.append(_NAN)
+                if not math.isfinite(vals[0]):
+                    raise self._err(
+                        lineno, "t", "empty (t is required)" if not parts[cols[0][0]].strip()
+                        else f"t must be finite, got {parts[cols[0][0]].strip()!r}"
+                    )
+                yield seq, vals
+        except UnicodeDecodeError as e:
+            raise self._err(lineno + 1, None, f"not UTF-8 text: {e}") from None
+        finally:
+            self.lineno = lineno
+
+    def tick(self, seq: int, v: list[float]) -> Tick:
+        position = orientation = None
+        if self.pose_slice is not None:
+            pose = v[self.pose_slice]
+            if not all(x != x for x in pose):
+                position = np.array(pose[:3])
+                orientation = np.array(pose[3:])
+        force = None
+        if self.f_slice is not None:
+            fv = v[self.f_slice]
+            if not all(x != x for x in fv):
+                force = np.array(fv)
+        temp = None
+        if self.temp_col is not None and v[self.temp_col] == v[self.temp_col]:
+            temp = v[self.temp_col]
+        return Tick(
+            seq=seq,
+            t=v[0],
+            position=position,
+            orientation=orientation,
+            motor_length=np.array(v[self.l_slice]),
+            force=force,
+            temperature=temp,
+        )
+
+    def full_metadata(self) -> dict[str, str]:
+        md = dict(self.metadata)
+        md.setdefault("robot", "")
+        md.setdefault("format", str(FORMAT_VERSION))
+        return md
+
+
+def read_csv(path: PathArg, *, robot_cables: Optional[int] = None) -> Recording:
+    """Read a format-1 CSV recording. ``robot`` is ``""`` when the file has no
+    ``# robot:`` line. Raises :class:`RecordingError` naming line and column."""
+    src = _CsvSource(path, robot_cables)
+    seqs: list[int] = []
+    rows: list[list[float]] = []
+    try:
+        for seq, vals in src.rows():
+            seqs.append(seq)
+            rows.append(vals)
+    finally:
+        src.close()
+    n, m = len(rows), src.n_cables
+    if any(not (-(2**63) <= s < 2**63) for s in seqs):
+        raise RecordingError(path, "column seq", "a seq value does not fit in 64 bits")
+    F = np.array(rows, dtype=np.float64).reshape(n, len(src.float_cols))
+
+    def part(a: np.ndarray) -> Optional[np.ndarray]:
+        return None if np.isnan(a).all() else np.ascontiguousarray(a)
+
+    position = orientation = force = temperature = None
+    if src.pose_slice is not None and n:
+        pose = F[:, src.pose_slice]
+        if not np.isnan(pose).all():
+            position = np.ascontiguousarray(pose[:, :3])
+            orientation = np.ascontiguousarray(pose[:, 3:])
+    if src.f_slice is not None and n:
+        force = part(F[:, src.f_slice])
+    if src.temp_col is not None and n:
+        temperature = part(F[:, src.temp_col])
+    meta = {k: v for k, v in src.metadata.items() if k not in ("robot", "format")}
+    return Recording(
+        robot=src.metadata.get("robot", ""),
+        metadata=meta,
+        t=np.ascontiguousarray(F[:, 0]),
+        seq=np.array(seqs, dtype=np.int64),
+        motor_length=np.ascontiguousarray(F[:, src.l_slice]).reshape(n, m),
+        position=position,
+        orientation=orientation,
+        force=force,
+        temperature=temperature,
+    )
+
+
+def iter_csv_inputs(path: PathArg, *, robot_cables: Optional[int] = None) -> Iterator[Tick]:
+    """Stream the ticks of a CSV recording in file order (header checked before return)."""
+    src = _CsvSource(path, robot_cables)
+    return _iter(src)
+
+
+def _iter(src: _CsvSource) -> Iterator[Tick]:
+    try:
+        for seq, vals in src.rows():
+            yield src.tick(seq, vals)
+    finally:
+        src.close()
+
+
+def read_csv_metadata(path: PathArg) -> dict[str, str]:
+    """The ``# key: value`` metadata, with ``robot`` ("" if absent) and ``format``."""
+    src = _CsvSource(path)
+    src.close()
+    return src.full_metadata()
+
+
+__all__ = [
+    "POSE_COLUMNS",
+    "csv_header",
+    "iter_csv_inputs",
+    "read_csv",
+    "read_csv_metadata",
+    "write_csv",
+]

@@ -1,0 +1,1001 @@
+"""MCAP side of recording format 1: :class:`McapRecordingWriter`, :func:`read_mcap`,
+:func:`iter_mcap_inputs`.
+
+Writing
+    One MCAP file: the header, the ``cablesvc`` metadata record (written straight away, so
+    it is at the start of the file), then zstd chunks holding the ``cablesvc.Input`` schema,
+    the ``/cablesvc/input`` channel and one JSON message per tick; ``close()`` writes the
+    summary (chunk, metadata indexes, statistics) and footer. The file is opened unbuffered:
+    every record batch mcap's writer hands over (a finished chunk with its message indexes,
+    the metadata, the summary) reaches the operating system in one ``write``. So a process
+    killed with ``kill -9`` keeps every *finished* chunk; it loses the chunk in progress,
+    which is at most ``chunk_size`` bytes of uncompressed JSON. ``flush()`` finishes the
+    chunk in progress (``mcap.writer.Writer.flush``, mcap >= 1.6) so a caller that flushes on
+    a timer bounds the loss by time; ``flush(fsync=True)`` also survives power loss.
+
+Reading
+    A complete file (footer and closing magic present) is read with its summary: the
+    ``cablesvc`` metadata record is found through the metadata index and the channel table
+    says up front whether ``/cablesvc/input`` exists. The messages are then read in *file
+    order* with mcap's streaming ``StreamReader``, one chunk in memory at a time. (mcap's
+    ``SeekingReader.iter_messages`` either re-sorts by log time, which is not file order
+    when ``t`` is not monotonic, or, with ``log_time_order=False``, decompresses every chunk
+    before yielding the first message.)
+
+    A file without footer (writer killed, disk full, copy cut short) is walked record by
+    record from the start to find the end of the last complete record; the complete prefix
+    is read the same way and :class:`~cablesvc.recording.format.Truncation` (also issued as
+    a :class:`~cablesvc.recording.format.RecordingTruncatedWarning`) says what was lost:
+    the partial chunk's time range, when its header survived, and an estimate of its ticks.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+import warnings
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, BinaryIO, Iterable, Iterator, Optional
+
+import numpy as np
+from mcap.exceptions import EndOfFile, McapError
+from mcap.opcode import Opcode
+from mcap.reader import make_reader
+from mcap.records import Channel, DataEnd, Message, Metadata
+from mcap.stream_reader import StreamReader
+from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
+
+from .. import __version__
+from .format import (
+    FORMAT_VERSION,
+    INPUT_JSON_SCHEMA,
+    INPUT_SCHEMA_NAME,
+    INPUT_TOPIC,
+    MESSAGE_ENCODING,
+    METADATA_NAME,
+    OUTPUT_TOPICS,
+    SCHEMA_ENCODING,
+    PathArg,
+    Recording,
+    RecordingError,
+    RecordingTruncatedWarning,
+    Tick,
+    TickColumns,
+    Truncation,
+)
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+#: Default chunk size (uncompressed bytes). At 1 kHz with 8 cables (~300 B per tick) a chunk
+#: fills in about 0.9 s, which bounds what a kill -9 loses when nobody calls ``flush()``.
+DEFAULT_CHUNK_SIZE = 256 * 1024
+_FOOTER_RECORD_BYTES = 1 + 8 + 8 + 8 + 4
+_LOG_TIME_MAX_S = (2**64 - 1) / 1e9
+_INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
+_COMPRESSION = {
+    "zstd": CompressionType.ZSTD,
+    "lz4": CompressionType.LZ4,
+    "none": CompressionType.NONE,
+}
+
+_ENCODER = json.JSONEncoder(allow_nan=False, separators=(",", ":"))
+
+
+# ===================================================================== writing helpers
+def _float_list(x: Any, name: str, n: Optional[int] = None) -> list:
+    """A 1-D sequence of numbers as a list of Python floats, non-finite values as None."""
+    if isinstance(x, np.ndarray):
+        if x.ndim != 1:
+            raise ValueError(f"{name} must be 1-D, has shape {x.shape}")
+        if x.dtype != np.float64:
+            x = x.astype(np.float64)
+        lst = x.tolist()
+    else:
+        lst = [float(v) for v in x]
+    if n is not None and len(lst) != n:
+        raise ValueError(f"{name} has {len(lst)} values, expected {n}")
+    if not all(map(math.isfinite, lst)):
+        lst = [v if math.isfinite(v) else None for v in lst]
+    return lst
+
+
+def _jsonable(obj: Any) -> Any:
+    """Slow path of payload encoding: numpy types to Python, non-finite floats to None."""
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    return obj
+
+
+def _encode_payload(payload: dict) -> bytes:
+    try:
+        return _ENCODER.encode(payload).encode()
+    except (TypeError, ValueError):
+        return _ENCODER.encode(_jsonable(payload)).encode()
+
+
+def _log_time(t: float) -> int:
+    if not (0.0 <= t <= _LOG_TIME_MAX_S):
+        raise ValueError(
+            f"t = {t!r} s cannot be an MCAP log_time (unsigned 64-bit ns): need 0 <= t <= "
+            f"{_LOG_TIME_MAX_S:.4g} and finite"
+        )
+    return round(t * 1e9)
+
+
+class _DirectFile:
+    """Unbuffered output for mcap's Writer: each batch it writes goes to the OS at once."""
+
+    def __init__(self, path: Path):
+        self._f = open(path, "wb", buffering=0)
+
+    def write(self, data: bytes) -> int:
+        view = memoryview(data)
+        total = len(view)
+        while view:
+            n = self._f.write(view)
+            view = view[n:]
+        return total
+
+    def tell(self) -> int:
+        return self._f.tell()
+
+    def flush(self) -> None:
+        """Nothing is buffered here (mcap's Writer calls this from its ``flush()``)."""
+
+    def fsync(self) -> None:
+        os.fsync(self._f.fileno())
+
+    def close(self) -> None:
+        self._f.close()
+
+
+class McapRecordingWriter:
+    """Write a format-1 MCAP recording tick by tick (the live service, simulator, convert).
+
+    ``robot`` is the robot's name; ``metadata`` are further key/values for the ``cablesvc``
+    metadata record (str to str; ``robot`` and ``format`` are set by the writer).
+    ``chunk_size`` is the uncompressed chunk size in bytes; ``compression`` is ``"zstd"``,
+    ``"lz4"`` or ``"none"``. Use as a context manager; the file is closed (summary written)
+    even when the block raises. Not thread-safe: call from one thread.
+    """
+
+    def __init__(
+        self,
+        path: PathArg,
+        robot: str,
+        metadata: Optional[dict[str, str]] = None,
+        chunk_size: int = DEFAULT_CHUNK_SIZE,
+        compression: str = "zstd",
+    ):
+        if not isinstance(robot, str) or not robot:
+            raise ValueError("robot must be a non-empty str (the robot's name)")
+        md = {"robot": robot, "format": str(FORMAT_VERSION)}
+        for k, v in (metadata or {}).items():
+            if not isinstance(k, str) or not isinstance(v, str):
+                raise TypeError(f"metadata must map str to str, got {k!r}: {v!r}")
+            if k in md:
+                raise ValueError(
+                    f"metadata key {k!r} is set by the writer (robot via the robot argument, "
+                    "format is fixed)"
+                )
+            md[k] = v
+        if compression not in _COMPRESSION:
+            raise ValueError(f"compression must be one of {sorted(_COMPRESSION)}")
+        if chunk_size < 1:
+            raise ValueError("chunk_size must be >= 1")
+        self.path = Path(path)
+        self._file = _DirectFile(self.path)
+        self._closed = False
+        try:
+            self._writer = Writer(
+                self._file,  # type: ignore[arg-type]
+                chunk_size=chunk_size,
+                compression=_COMPRESSION[compression],
+            )
+            self._writer.start(
+                profile="", library=f"cablesvc/{__version__} ({LIBRARY_IDENTIFIER})"
+            )
+            self._writer.add_metadata(METADATA_NAME, md)
+            schema_id = self._writer.register_schema(
+                INPUT_SCHEMA_NAME, SCHEMA_ENCODING, json.dumps(INPUT_JSON_SCHEMA).encode()
+            )
+            self._input_channel = self._writer.register_channel(
+                INPUT_TOPIC, MESSAGE_ENCODING, schema_id
+            )
+        except BaseException:
+            self._file.close()
+            self._closed = True
+            raise
+        self._channels: dict[str, int] = {INPUT_TOPIC: self._input_channel}
+        self._schemas: dict[str, tuple[str, bytes]] = {}
+        self._n_cables: Optional[int] = None
+        self.n_inputs = 0
+        """Number of ticks written so far."""
+
+    # ------------------------------------------------------------------ context
+    def __enter__(self) -> "McapRecordingWriter":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise ValueError(f"{self.path}: writer is closed")
+
+    # ------------------------------------------------------------------ input
+    def write_input(
+        self,
+        seq: int,
+        t: float,
+        motor_length: Any,
+        force: Any = None,
+        position: Any = None,
+        orientation: Any = None,
+        temperature: Optional[float] = None,
+    ) -> None:
+        """Write one tick on ``/cablesvc/input`` (log_time = t in ns).
+
+        Arrays may be numpy arrays or sequences; non-finite values are written as null.
+        ``position`` and ``orientation`` ([qx, qy, qz, qw]) go together (both or neither).
+        The first tick fixes the cable count; later ticks must match it.
+        """
+        self._check_open()
+        if type(seq) is not int:
+            if isinstance(seq, (bool, np.bool_)) or not isinstance(seq, (int, np.integer)):
+                raise TypeError(f"seq must be an integer, got {type(seq).__name__}")
+            seq = int(seq)
+        t = float(t)
+        log_time = _log_time(t)
+        ml = _float_list(motor_length, "motor_length", self._n_cables)
+        if self._n_cables is None:
+            if not ml:
+                raise ValueError("motor_length is empty: a robot has at least one cable")
+            self._n_cables = len(ml)
+        f = None if force is None else _float_list(force, "force", self._n_cables)
+        if position is None and orientation is None:
+            pose = None
+        elif position is None or orientation is None:
+            raise ValueError("position and orientation must be given together")
+        else:
+            pose = {
+                "position": _float_list(position, "position", 3),
+                "orientation": _float_list(orientation, "orientation", 4),
+            }
+        temp = None
+        if temperature is not None:
+            temp = float(temperature)
+            if not math.isfinite(temp):
+                temp = None
+        data = _ENCODER.encode(
+            {
+                "seq": seq,
+                "t": t,
+                "pose": pose,
+                "motor_length": ml,
+                "force": f,
+                "temperature": temp,
+            }
+        ).encode()
+        self._writer.add_message(
+            self._input_channel, log_time, data, log_time, seq & 0xFFFFFFFF
+        )
+        self.n_inputs += 1
+
+    # ------------------------------------------------------------------ other topics
+    def register_topic(
+        self,
+        topic: str,
+        schema_name: Optional[str] = None,
+        json_schema: Optional[dict] = None,
+    ) -> int:
+        """Register a JSON topic besides the input; return its channel id.
+
+        For the documented output topics (``OUTPUT_TOPICS``: ``/cablesvc/forces``,
+        ``/cablesvc/alarms``) schema name and schema may be left out. Registering a topic
+        again with the same schema returns the same channel id.
+        """
+        self._check_open()
+        if topic == INPUT_TOPIC:
+            raise ValueError(f"{INPUT_TOPIC} is written with write_input()")
+        if schema_name is None and json_schema is None and topic in OUTPUT_TOPICS:
+            schema_name, json_schema = OUTPUT_TOPICS[topic]
+        if not schema_name or json_schema is None:
+            raise ValueError(f"topic {topic!r} needs a schema name and a JSON schema")
+        if not isinstance(json_schema, dict):
+            raise TypeError("json_schema must be a dict (a JSON Schema document)")
+        data = json.dumps(json_schema).encode()
+        if topic in self._channels:
+            if self._schemas[topic] != (schema_name, data):
+                raise ValueError(f"topic {topic!r} is already registered with another schema")
+            return self._channels[topic]
+        schema_id = self._writer.register_schema(schema_name, SCHEMA_ENCODING, data)
+        channel_id = self._writer.register_channel(topic, MESSAGE_ENCODING, schema_id)
+        self._channels[topic] = channel_id
+        self._schemas[topic] = (schema_name, data)
+        return channel_id
+
+    def write(self, topic: str, t: float, payload: dict) -> None:
+        """Write a JSON message on a registered topic (log_time = t in ns).
+
+        The documented output topics are registered on first use. numpy arrays and scalars
+        in ``payload`` are converted; non-finite floats are written as null.
+        """
+        self._check_open()
+        channel = self._channels.get(topic)
+        if channel is None or topic == INPUT_TOPIC:
+            if topic == INPUT_TOPIC:
+                raise ValueError(f"{INPUT_TOPIC} is written with write_input()")
+            if topic not in OUTPUT_TOPICS:
+                raise KeyError(f"topic {topic!r} is not registered (use register_topic)")
+            channel = self.register_topic(topic)
+        if not isinstance(payload, dict):
+            raise TypeError("payload must be a dict (a JSON object)")
+        log_time = _log_time(float(t))
+        self._writer.add_message(channel, log_time, _encode_payload(payload), log_time)
+
+    # ------------------------------------------------------------------ durability
+    def flush(self, fsync: bool = False) -> None:
+        """Finish the chunk in progress and hand everything written so far to the OS.
+
+        After it returns, a ``kill -9`` of this process keeps every tick written before
+        the call (the file then has no summary/footer; :func:`read_mcap` reads it and
+        reports the loss). ``fsync=True`` also forces the data to the disk (survives power
+        loss; costs a disk sync). Each flush closes a chunk, so flushing much more often
+        than once a second makes the file larger (less compression, more index records).
+        """
+        self._check_open()
+        flush = getattr(self._writer, "flush", None)
+        if flush is None:  # mcap < 1.6 has no public way to finish a chunk
+            raise RuntimeError("McapRecordingWriter.flush() needs mcap >= 1.6 (Writer.flush)")
+        flush()
+        if fsync:
+            self._file.fsync()
+
+    def close(self) -> None:
+        """Finish the last chunk, write the summary and footer, close the file. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._writer.finish()
+        finally:
+            self._file.close()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+
+def write_mcap(
+    path: PathArg,
+    rec: Recording,
+    *,
+    robot: Optional[str] = None,
+    chunk_size: int = DEFAULT_CHUNK_SIZE,
+) -> None:
+    """Write a whole :class:`Recording` as MCAP.
+
+    ``robot`` overrides ``rec.robot`` (needed when it is empty, e.g. a CSV without
+    metadata). ``rec.extra`` payloads are written on their topics with log_time from their
+    ``t`` field, each after the input tick with the same or the next smaller ``t``; the
+    documented output topics get their schema, other topics a plain ``{"type": "object"}``.
+    """
+    problems = rec.shape_problems()
+    if problems:
+        raise ValueError(f"{path}: cannot write recording: " + "; ".join(problems))
+    robot = robot or rec.robot
+    if not robot:
+        raise ValueError(f"{path}: the recording has no robot name; pass robot=...")
+    pending: list[tuple[float, str, dict]] = []
+    for topic, payloads in rec.extra.items():
+        for p in payloads:
+            pt = p.get("t") if isinstance(p, dict) else None
+            if not isinstance(pt, (int, float)) or isinstance(pt, bool):
+                raise ValueError(f"{path}: extra payload on {topic} has no numeric 't'")
+            pending.append((float(pt), topic, p))
+    pending.sort(key=lambda e: e[0])
+
+    n = rec.n_ticks
+    t = rec.t.tolist()
+    seq = rec.seq.tolist()
+    ml = rec.motor_length.tolist()
+    pos = rec.position.tolist() if rec.position is not None else None
+    ori = rec.orientation.tolist() if rec.orientation is not None else None
+    force = rec.force.tolist() if rec.force is not None else None
+    temp = rec.temperature.tolist() if rec.temperature is not None else None
+
+    def all_nan(row: list) -> bool:
+        return all(v != v for v in row)
+
+    with McapRecordingWriter(path, robot, rec.metadata, chunk_size=chunk_size) as w:
+        for topic in rec.extra:
+            if topic in OUTPUT_TOPICS:
+                w.register_topic(topic)
+            else:
+                w.register_topic(topic, topic, {"type": "object"})
+        j = 0
+        for i in range(n):
+            p = q = None
+            if pos is not None and ori is not None and not (
+                all_nan(pos[i]) and all_nan(ori[i])
+            ):
+                p, q = pos[i], ori[i]
+            f = None
+            if force is not None and not all_nan(force[i]):
+                f = force[i]
+            w.write_input(
+                seq[i], t[i], ml[i], f, p, q, None if temp is None else temp[i]
+            )
+            while j < len(pending) and pending[j][0] <= t[i]:
+                w.write(pending[j][1], pending[j][0], pending[j][2])
+                j += 1
+        for pt, topic, payload in pending[j:]:
+            w.write(topic, pt, payload)
+
+
+# ===================================================================== reading helpers
+class _Bounded:
+    """A read-only view of ``f`` ending at ``limit`` (the end of the last complete record)."""
+
+    def __init__(self, f: BinaryIO, start: int, limit: int):
+        f.seek(start)
+        self._f = f
+        self.pos = start
+        self.limit = limit
+
+    def read(self, n: int = -1) -> bytes:
+        remaining = self.limit - self.pos
+        if n is None or n < 0 or n > remaining:
+            n = remaining
+        if n <= 0:
+            return b""
+        data = self._f.read(n)
+        self.pos += len(data)
+        return data
+
+
+@dataclass
+class _Layout:
+    size: int
+    usable: int  # end of the last complete record; == size for a complete file
+    complete: bool  # footer and closing magic present
+    data_end_seen: bool = True
+    chunks: int = 0
+    partial: Optional[str] = None
+    partial_t_ns: Optional[tuple[int, int]] = None
+
+
+def _record_name(opcode: int) -> str:
+    try:
+        return Opcode(opcode).name.replace("_", " ").title().replace(" ", "")
+    except ValueError:
+        return f"opcode 0x{opcode:02x}"
+
+
+def _layout(f: BinaryIO, size: int) -> _Layout:
+    """Find whether the file is complete; if not, where its last complete record ends."""
+    if size >= 8 + 9 + _FOOTER_RECORD_BYTES + 8:
+        f.seek(size - 8)
+        if f.read(8) == MCAP_MAGIC:
+            f.seek(size - 8 - _FOOTER_RECORD_BYTES)
+            opcode, length = struct.unpack("<BQ", f.read(9))
+            if opcode == Opcode.FOOTER and length == _FOOTER_RECORD_BYTES - 9:
+                return _Layout(size=size, usable=size, complete=True)
+    pos = 8
+    data_end = False
+    chunks = 0
+    while True:
+        if pos == size:
+            return _Layout(size, pos, False, data_end, chunks)
+        if pos + 9 > size:
+            return _Layout(
+                size, pos, False, data_end, chunks,
+                f"a partial record header at byte {pos:,} ({size - pos} of 9 bytes present)",
+            )
+        f.seek(pos)
+        opcode, length = struct.unpack("<BQ", f.read(9))
+        end = pos + 9 + length
+        if end > size:
+            t_ns = None
+            if opcode == Opcode.CHUNK and size - pos >= 9 + 16:
+                t_ns = struct.unpack("<QQ", f.read(16))
+            return _Layout(
+                size, pos, False, data_end, chunks,
+                f"a partial {_record_name(opcode)} record at byte {pos:,} "
+                f"({size - pos:,} of {9 + length:,} bytes present)",
+                t_ns,
+            )
+        if opcode == Opcode.CHUNK:
+            chunks += 1
+        elif opcode == Opcode.DATA_END:
+            data_end = True
+        elif opcode == Opcode.FOOTER:
+            # Footer complete but the closing magic is missing or cut.
+            return _Layout(size, end, False, True, chunks)
+        pos = end
+
+
+def _jtype(v: Any) -> str:
+    if v is None:
+        return "null"
+    if isinstance(v, bool):
+        return "a boolean"
+    if isinstance(v, (int, float)):
+        return "a number"
+    if isinstance(v, str):
+        return "a string"
+    if isinstance(v, list):
+        return "an array"
+    if isinstance(v, dict):
+        return "an object"
+    return type(v).__name__
+
+
+class _BadField(Exception):
+    def __init__(self, name: str, reason: str):
+        super().__init__(name, reason)
+        self.name = name
+        self.reason = reason
+
+
+def _numbers(v: Any, name: str, n: Optional[int], why: str = "") -> list:
+    if type(v) is not list:
+        raise _BadField(name, f"expected an array of numbers, got {_jtype(v)}")
+    if n is not None and len(v) != n:
+        raise _BadField(name, f"has {len(v)} values, expected {n}{why}")
+    for i, x in enumerate(v):
+        tx = type(x)
+        if tx is not float and tx is not int and x is not None:
+            raise _BadField(f"{name}[{i}]", f"expected a number or null, got {_jtype(x)}")
+    return v
+
+
+def _absent(v: list) -> bool:
+    return all(x is None or x != x for x in v)
+
+
+_MISSING = object()
+
+
+class _McapSource:
+    """An open MCAP recording: layout, metadata, and a file-order message iterator."""
+
+    def __init__(
+        self,
+        path: PathArg,
+        robot_cables: Optional[int] = None,
+        keep_topics: Iterable[str] = (),
+    ):
+        self.path = str(path)
+        self.robot_cables = robot_cables
+        self.keep_topics = frozenset(keep_topics) - {INPUT_TOPIC}
+        self.summary_topics: Optional[set[str]] = None
+        try:
+            self._f: BinaryIO = open(path, "rb")
+        except FileNotFoundError:
+            raise RecordingError(path, "file", "no such file") from None
+        except OSError as e:
+            raise RecordingError(path, "file", f"cannot open: {e.strerror or e}") from None
+        try:
+            size = os.fstat(self._f.fileno()).st_size
+            if size == 0:
+                raise RecordingError(path, "file", "empty file (0 bytes): not an MCAP file")
+            head = self._f.read(8)
+            if head != MCAP_MAGIC:
+                hint = ""
+                if head and all(32 <= b < 127 or b in (9, 10, 13) for b in head):
+                    hint = " (it looks like text; CSV recordings need the .csv suffix)"
+                raise RecordingError(
+                    path,
+                    "byte 0",
+                    f"not an MCAP file: it starts with {head!r}, not the MCAP magic "
+                    f"{MCAP_MAGIC!r}{hint}",
+                )
+            self.layout = _layout(self._f, size)
+            self.metadata = self._read_metadata()
+        except BaseException:
+            self._f.close()
+            raise
+        self.robot = self.metadata["robot"]
+        self.other_metadata = {
+            k: v for k, v in self.metadata.items() if k not in ("robot", "format")
+        }
+        self.n_cables = robot_cables
+        self.input_channels = 0
+        self.topics: set[str] = set()
+        self.n_inputs = 0
+        self.first: Optional[tuple[int, float]] = None
+        self.last: Optional[tuple[int, float]] = None
+
+    def close(self) -> None:
+        self._f.close()
+
+    def _truncated_hint(self) -> str:
+        L = self.layout
+        if L.complete:
+            return ""
+        return f" (the file is incomplete: only {L.usable:,} of {L.size:,} bytes are usable)"
+
+    def _corrupt(self, pos: int, e: BaseException) -> RecordingError:
+        return RecordingError(
+            self.path, f"near byte {pos:,}", f"corrupt MCAP data: {type(e).__name__}: {e}"
+        )
+
+    def _read_metadata(self) -> dict[str, str]:
+        records: list[Metadata] = []
+        if self.layout.complete:
+            try:
+                self._f.seek(0)
+                reader = make_reader(self._f)
+                summary = reader.get_summary()
+                if summary is not None:
+                    if summary.channels:
+                        self.summary_topics = {c.topic for c in summary.channels.values()}
+                    if summary.metadata_indexes:
+                        records = list(reader.iter_metadata())
+            except (McapError, struct.error, ValueError, OSError):
+                records = []  # a damaged summary: fall back to the linear scan below
+                self.summary_topics = None
+        if not any(r.name == METADATA_NAME for r in records):
+            records = self._scan_metadata()
+        found = [r for r in records if r.name == METADATA_NAME]
+        if not found:
+            names = sorted({r.name for r in records})
+            have = (
+                f"its metadata records are named {names}"
+                if names
+                else "it has no metadata records"
+            )
+            raise RecordingError(
+                self.path,
+                "metadata",
+                f"no metadata record named {METADATA_NAME!r} ({have}); format "
+                f"{FORMAT_VERSION} requires one with 'robot' and 'format'"
+                + self._truncated_hint(),
+            )
+        md = dict(found[0].metadata)
+        where = f"metadata record {METADATA_NAME!r}"
+        for key in ("robot", "format"):
+            if key not in md:
+                raise RecordingError(
+                    self.path, where, f"missing key {key!r} (it has {sorted(md)})"
+                )
+        if md["format"] != str(FORMAT_VERSION):
+            raise RecordingError(
+                self.path,
+                f"{where}, key 'format'",
+                f"format {md['format']!r} is not supported: this cablesvc reads format "
+                f"{FORMAT_VERSION}",
+            )
+        if (
+            self.summary_topics is not None
+            and INPUT_TOPIC not in self.summary_topics
+        ):
+            raise RecordingError(
+                self.path,
+                INPUT_TOPIC,
+                f"no channel on topic {INPUT_TOPIC} (topics in the file: "
+                f"{sorted(self.summary_topics)})",
+            )
+        return md
+
+    def _scan_metadata(self) -> list[Metadata]:
+        """Linear scan for metadata records (chunks are skipped, not decompressed)."""
+        bounded = _Bounded(self._f, 0, self.layout.usable)
+        out: list[Metadata] = []
+        records = StreamReader(bounded, emit_chunks=True).records  # type: ignore[arg-type]
+        while True:
+            try:
+                rec = next(records)
+            except StopIteration:
+                break
+            except EndOfFile:
+                if bounded.pos >= bounded.limit:
+                    break
+                raise self._corrupt(bounded.pos, EOFError("unexpected end")) from None
+            except Exception as e:  # the library's parser on damaged bytes
+                raise self._corrupt(bounded.pos, e) from e
+            if isinstance(rec, Metadata):
+                out.append(rec)
+                if rec.name == METADATA_NAME:
+                    break
+            elif isinstance(rec, DataEnd):
+                break
+        return out
+
+    # ---------------------------------------------------------------- messages
+    def messages(self) -> Iterator[tuple[Optional[str], Any]]:
+        """Yield ``(None, parsed input tuple)`` and ``(topic, payload)`` in file order."""
+        bounded = _Bounded(self._f, 0, self.layout.usable)
+        records = StreamReader(bounded, validate_crcs=True).records  # type: ignore[arg-type]
+        channels: dict[int, Channel] = {}
+        input_ids: set[int] = set()
+        keep_ids: dict[int, str] = {}
+        kept_index: dict[str, int] = defaultdict(int)
+        k = 0
+        while True:
+            try:
+                rec = next(records)
+            except StopIteration:
+                break
+            except EndOfFile:
+                if bounded.pos >= bounded.limit and not self.layout.complete:
+                    break
+                raise self._corrupt(bounded.pos, EOFError("unexpected end of data")) from None
+            except Exception as e:  # the library's parser on damaged bytes
+                raise self._corrupt(bounded.pos, e) from e
+            if isinstance(rec, Message):
+                cid = rec.channel_id
+                if cid in input_ids:
+                    tick = self._parse_input(rec.data, k)
+                    k += 1
+                    yield None, tick
+                elif cid in keep_ids:
+                    topic = keep_ids[cid]
+                    i = kept_index[topic]
+                    kept_index[topic] += 1
+                    try:
+                        payload = json.loads(rec.data)
+                    except ValueError as e:
+                        raise RecordingError(
+                            self.path, f"message {i} on {topic}", f"not valid JSON: {e}"
+                        ) from None
+                    yield topic, payload
+                elif cid not in channels:
+                    raise RecordingError(
+                        self.path,
+                        f"near byte {bounded.pos:,}",
+                        f"message on channel id {cid}, which has no channel record before it",
+                    )
+            elif isinstance(rec, Channel):
+                channels[rec.id] = rec
+                self.topics.add(rec.topic)
+                if rec.topic == INPUT_TOPIC or rec.topic in self.keep_topics:
+                    if rec.message_encoding != MESSAGE_ENCODING:
+                        raise RecordingError(
+                            self.path,
+                            f"channel {rec.id} ({rec.topic})",
+                            f"message encoding {rec.message_encoding!r}; format "
+                            f"{FORMAT_VERSION} uses {MESSAGE_ENCODING!r}",
+                        )
+                    if rec.topic == INPUT_TOPIC:
+                        input_ids.add(rec.id)
+                        self.input_channels += 1
+                    else:
+                        keep_ids[rec.id] = rec.topic
+            elif isinstance(rec, DataEnd):
+                break
+
+    def _parse_input(self, data: bytes, k: int) -> tuple:
+        try:
+            try:
+                obj = json.loads(data)
+            except ValueError as e:
+                raise _BadField("", f"not valid JSON: {e}") from None
+            if type(obj) is not dict:
+                raise _BadField("", f"expected a JSON object, got {_jtype(obj)}")
+            seq = obj.get("seq", _MISSING)
+            if seq is _MISSING:
+                raise _BadField("seq", "missing required field")
+            if type(seq) is not int:
+                raise _BadField("seq", f"expected an integer, got {_jtype(seq)} ({seq!r})")
+            if not _INT64_MIN <= seq <= _INT64_MAX:
+                raise _BadField("seq", f"{seq} does not fit in 64 bits")
+            t = obj.get("t", _MISSING)
+            if t is _MISSING:
+                raise _BadField("t", "missing required field")
+            if type(t) is not float and type(t) is not int:
+                raise _BadField("t", f"expected a number, got {_jtype(t)}")
+            t = float(t)
+            if not math.isfinite(t):
+                raise _BadField("t", f"must be finite, got {t!r}")
+            ml = obj.get("motor_length", _MISSING)
+            if ml is _MISSING:
+                raise _BadField("motor_length", "missing required field")
+            if self.n_cables is None:
+                ml = _numbers(ml, "motor_length", None)
+                if not ml:
+                    raise _BadField("motor_length", "is empty (a robot has at least 1 cable)")
+                self.n_cables = len(ml)
+            else:
+                why = (
+                    f" (the robot has {self.n_cables} cables)"
+                    if self.robot_cables is not None
+                    else f" (message 0 had {self.n_cables})"
+                )
+                ml = _numbers(ml, "motor_length", self.n_cables, why)
+            pose = obj.get("pose")
+            position = orientation = None
+            if pose is not None:
+                if type(pose) is not dict:
+                    raise _BadField("pose", f"expected an object or null, got {_jtype(pose)}")
+                for part in ("position", "orientation"):
+                    if part not in pose:
+                        raise _BadField(
+                            f"pose.{part}", "missing (pose needs position and orientation)"
+                        )
+                position = _numbers(pose["position"], "pose.position", 3)
+                orientation = _numbers(pose["orientation"], "pose.orientation", 4)
+                if _absent(position) and _absent(orientation):
+                    position = orientation = None
+            force = obj.get("force")
+            if force is not None:
+                force = _numbers(
+                    force, "force", self.n_cables, " (one per cable, like motor_length)"
+                )
+                if _absent(force):
+                    force = None
+            temp = obj.get("temperature")
+            if temp is not None:
+                if type(temp) is not float and type(temp) is not int:
+                    raise _BadField(
+                        "temperature", f"expected a number or null, got {_jtype(temp)}"
+                    )
+                temp = float(temp)
+                if temp != temp:
+                    temp = None
+        except _BadField as e:
+            reason = f"field {e.name!r}: {e.reason}" if e.name else e.reason
+            raise RecordingError(self.path, f"message {k} on {INPUT_TOPIC}", reason) from None
+        if self.first is None:
+            self.first = (seq, t)
+        self.last = (seq, t)
+        self.n_inputs += 1
+        return seq, t, position, orientation, ml, force, temp
+
+    def check_input_channel(self) -> None:
+        """A complete file must have the input channel; an incomplete one may have lost it."""
+        if self.input_channels == 0 and self.layout.complete:
+            raise RecordingError(
+                self.path,
+                INPUT_TOPIC,
+                f"no channel on topic {INPUT_TOPIC} (topics in the file: {sorted(self.topics)})",
+            )
+
+    def truncation(self) -> Optional[Truncation]:
+        L = self.layout
+        if L.complete:
+            return None
+        lost_range = None
+        if L.partial_t_ns is not None:
+            lost_range = (L.partial_t_ns[0] / 1e9, L.partial_t_ns[1] / 1e9)
+        parts = [
+            f"{self.path} is incomplete: it has no summary/footer (the writer did not close "
+            "it: process killed, disk full or copy cut short).",
+            f"Read {L.usable:,} of {L.size:,} bytes ({L.chunks} complete chunks);"
+            f" recovered {self.n_inputs} ticks",
+        ]
+        if self.first is not None and self.last is not None:
+            parts[-1] += (
+                f" (seq {self.first[0]}..{self.last[0]}, t {self.first[1]:.6g}.."
+                f"{self.last[1]:.6g} s)."
+            )
+        else:
+            parts[-1] += "."
+        if L.data_end_seen:
+            parts.append(
+                "All data records are complete (only the summary/footer is missing or cut): "
+                "no ticks were lost."
+            )
+        elif L.partial is not None:
+            lost = f"Lost: {L.partial}"
+            if lost_range is not None:
+                lost += f", holding ticks with t {lost_range[0]:.6g}..{lost_range[1]:.6g} s"
+                if self.first is not None and self.last is not None and self.n_inputs > 1:
+                    dt = (self.last[1] - self.first[1]) / (self.n_inputs - 1)
+                    if dt > 0:
+                        est = round((lost_range[1] - lost_range[0]) / dt) + 1
+                        lost += f" (about {est} ticks)"
+            parts.append(lost + ", and anything the writer wrote after it.")
+        else:
+            parts.append(
+                "The file ends after a complete record (the writer stopped after a flush or "
+                "a finished chunk): ticks it had not yet written out were lost; the file "
+                "does not record how many."
+            )
+        return Truncation(
+            file_bytes=L.size,
+            usable_bytes=L.usable,
+            complete_chunks=L.chunks,
+            data_complete=L.data_end_seen,
+            partial_record=L.partial,
+            lost_t_range=lost_range,
+            message=" ".join(parts),
+        )
+
+
+def _as_tick(parsed: tuple) -> Tick:
+    seq, t, position, orientation, ml, force, temp = parsed
+    f64 = np.float64
+    return Tick(
+        seq=seq,
+        t=t,
+        position=None if position is None else np.array(position, dtype=f64),
+        orientation=None if orientation is None else np.array(orientation, dtype=f64),
+        motor_length=np.array(ml, dtype=f64),
+        force=None if force is None else np.array(force, dtype=f64),
+        temperature=temp,
+    )
+
+
+# ===================================================================== public readers
+def read_mcap(
+    path: PathArg,
+    *,
+    robot_cables: Optional[int] = None,
+    keep_topics: Iterable[str] = (),
+) -> Recording:
+    """Read a format-1 MCAP recording into a :class:`Recording`.
+
+    ``robot_cables``: when given, every tick must have that many cables. ``keep_topics``:
+    other JSON topics to decode into ``Recording.extra`` (all other topics are ignored).
+    An incomplete file is read up to its last complete record; ``Recording.truncation``
+    describes the loss and a :class:`RecordingTruncatedWarning` is issued.
+    Raises :class:`RecordingError` naming the file, the place and the reason.
+    """
+    src = _McapSource(path, robot_cables, keep_topics)
+    try:
+        cols = TickColumns(robot_cables)
+        extra: dict[str, list] = {topic: [] for topic in sorted(src.keep_topics)}
+        append = cols.append
+        for topic, item in src.messages():
+            if topic is None:
+                append(*item)
+            else:
+                extra[topic].append(item)
+        src.check_input_channel()
+        if cols.n_cables is None and src.n_cables is not None:
+            cols.n_cables = src.n_cables
+        trunc = src.truncation()
+    finally:
+        src.close()
+    rec = cols.build(src.robot, src.other_metadata, extra=extra, truncation=trunc)
+    if trunc is not None:
+        warnings.warn(RecordingTruncatedWarning(trunc.message), stacklevel=2)
+    return rec
+
+
+def iter_mcap_inputs(path: PathArg, *, robot_cables: Optional[int] = None) -> Iterator[Tick]:
+    """Stream the ticks of ``/cablesvc/input`` in file order (one chunk in memory at a time).
+
+    The file, its metadata and format are checked before this returns; message errors
+    are raised while iterating. An incomplete file ends with a
+    :class:`RecordingTruncatedWarning` after its last complete tick.
+    """
+    src = _McapSource(path, robot_cables)
+    return _iter_ticks(src)
+
+
+def _iter_ticks(src: _McapSource) -> Iterator[Tick]:
+    try:
+        for topic, item in src.messages():
+            if topic is None:
+                yield _as_tick(item)
+        src.check_input_channel()
+        trunc = src.truncation()
+    finally:
+        src.close()
+    if trunc is not None:
+        warnings.warn(RecordingTruncatedWarning(trunc.message), stacklevel=2)
+
+
+def read_mcap_metadata(path: PathArg) -> dict[str, str]:
+    """The ``cablesvc`` metadata record (including ``robot`` and ``format``), checked."""
+    src = _McapSource(path)
+    src.close()
+    return dict(src.metadata)
