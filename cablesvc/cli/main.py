@@ -1,0 +1,270 @@
+"""The one command line of cablesvc: ``cablesvc <command> ...``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+EPILOG = """\
+examples:
+  cablesvc run                                  embedded demo: simulated IPAnema 3 + kernel, live forces
+  cablesvc simulate --robot ipanema3 --scenario hold-sine --out rec.mcap
+  cablesvc simulate --robot ipanema3 --scenario trajectory --effect pulley --out traj.mcap
+  cablesvc robots check robots/ipanema3.toml    validate a robot file, one line per problem
+  cablesvc bench kernel --json                  per-tick latency of the fixed-time kernel
+"""
+
+
+def _console():
+    from rich.console import Console
+    return Console(stderr=False)
+
+
+# ---- run -------------------------------------------------------------------------------
+
+def cmd_run(args) -> int:
+    """Until the live daemon exists: the digital twin plays the controller, the kernel
+    predicts every tick, and a live table shows predicted against measured forces."""
+    import numpy as np
+    from rich.live import Live
+    from rich.table import Table
+
+    from cablesvc.config import load_robot
+    from cablesvc.config.params import default_params, load_params
+    from cablesvc.kernel import Predictor
+    from cablesvc.kinematics import inverse_kinematics
+    from cablesvc.simulate import simulate_recording
+
+    robot = load_robot(args.robot)
+    geom = robot.geometry()
+    rec = simulate_recording(robot, args.scenario, None, duration=args.duration, rate=args.rate, seed=args.seed)
+    L = inverse_kinematics(geom, np.zeros((1, 3)), np.array([[0, 0, 0, 1.0]])).length[0]
+    params = load_params(args.params) if args.params else default_params(geom.ea, L, "amplitude")
+    pred = Predictor(geom, params)
+    con = _console()
+    con.print(f"[bold]cablesvc[/] demo: robot [cyan]{robot.name}[/] ({geom.n_cables} cables), scenario "
+              f"[cyan]{args.scenario}[/], model [cyan]{params.model}[/]{' (nominal parameters)' if not args.params else ''}, "
+              f"{rec.n_ticks} ticks at {args.rate:g} Hz. Ctrl-C stops.")
+
+    def table(k, out, lat_us):
+        tb = Table(title=f"t = {out.t:7.3f} s   tick {k}   kernel {lat_us:6.1f} us", expand=False)
+        for col in ("cable", "predicted N", "measured N", "residual N", "elongation mm", "wrap deg", "slack"):
+            tb.add_column(col, justify="right")
+        for i in range(geom.n_cables):
+            tb.add_row(geom.cable_names[i], f"{out.force[i]:8.2f}", f"{out.measured[i]:8.2f}",
+                       f"{out.residual[i]:+7.2f}", f"{out.elongation[i] * 1e3:7.3f}",
+                       f"{np.degrees(out.wrap_angle[i]):6.1f}", "yes" if out.slack[i] else "")
+        return tb
+
+    start = time.monotonic()
+    shown = -1.0
+    lat = 0.0
+    resid = []
+    try:
+        with Live(console=con, refresh_per_second=8, transient=False) as live:
+            for k in range(rec.n_ticks):
+                t = float(rec.t[k])
+                if args.speed > 0:
+                    delay = start + (t - rec.t[0]) / args.speed - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                pos = rec.position[k] if rec.position is not None else None
+                quat = rec.orientation[k] if rec.orientation is not None else None
+                a = time.perf_counter_ns()
+                out = pred.tick(t, rec.motor_length[k], pos, quat,
+                                rec.force[k] if rec.force is not None else None,
+                                None if rec.temperature is None else float(rec.temperature[k]))
+                lat = 0.98 * lat + 0.02 * (time.perf_counter_ns() - a) / 1e3 if k else (time.perf_counter_ns() - a) / 1e3
+                resid.append(out.residual.copy())
+                if time.monotonic() - shown > 0.125:
+                    live.update(table(k, out, lat))
+                    shown = time.monotonic()
+    except KeyboardInterrupt:
+        con.print("stopped")
+    r = np.array(resid)
+    if r.size and np.isfinite(r).any():
+        con.print(f"residual RMS per cable (N): {np.sqrt(np.nanmean(r ** 2, axis=0)).round(3).tolist()}")
+    return 0
+
+
+# ---- simulate --------------------------------------------------------------------------
+
+def cmd_simulate(args) -> int:
+    from cablesvc.config import load_robot
+    from cablesvc.config.params import load_params
+    from cablesvc.simulate import SCENARIOS, TruthConfig, effect_from_spec, list_effects
+
+    if args.list:
+        con = _console()
+        con.print("[bold]scenarios[/]")
+        for name, fn in SCENARIOS.items():
+            con.print(f"  {name:16s} {(fn.__doc__ or '').strip().splitlines()[0]}")
+        con.print("[bold]effects[/] (--effect NAME[:MAGNITUDE][@CABLES])")
+        for line in list_effects():
+            con.print(f"  {line}")
+        return 0
+    if not args.out:
+        print("cablesvc simulate: --out is required (a .mcap or .csv path)", file=sys.stderr)
+        return 2
+    robot = load_robot(args.robot)
+    effects = [effect_from_spec(s, robot.n_cables) for s in args.effect]
+    base = load_params(args.truth_params) if args.truth_params else None
+    truth = TruthConfig(base=base, effects=effects, noise_std=args.noise, seed=args.seed)
+    kwargs = {}
+    for kv in args.set:
+        k, _, v = kv.partition("=")
+        try:
+            kwargs[k] = json.loads(v)
+        except json.JSONDecodeError:
+            kwargs[k] = v
+    rec = simulate_recording(robot, args.scenario, Path(args.out), truth=truth, duration=args.duration,
+                             rate=args.rate, seed=args.seed, **kwargs)
+    print(f"wrote {args.out}: {rec.n_ticks} ticks, {rec.n_cables} cables, "
+          f"{rec.t[-1] - rec.t[0]:.1f} s, effects: {', '.join(e.describe() for e in effects) or 'none'}")
+    return 0
+
+
+# ---- robots ----------------------------------------------------------------------------
+
+def cmd_robots(args) -> int:
+    from cablesvc.config import RobotFileError, load_robot, robot_search_path
+
+    if args.action == "list":
+        seen = set()
+        for d in robot_search_path():
+            for p in sorted(Path(d).glob("*.toml")) if Path(d).is_dir() else []:
+                if p.stem in seen:
+                    continue
+                seen.add(p.stem)
+                try:
+                    r = load_robot(p)
+                    print(f"{p.stem:12s} {r.n_cables} cables  {p}")
+                except RobotFileError as e:
+                    print(f"{p.stem:12s} INVALID ({len(e.problems)} problems)  {p}")
+        return 0
+    bad = 0
+    for f in args.files:
+        try:
+            r = load_robot(f)
+            print(f"{f}: ok ({r.n_cables} cables)")
+        except RobotFileError as e:
+            print(str(e), file=sys.stderr)
+            bad += 1
+    return 1 if bad else 0
+
+
+# ---- bench -----------------------------------------------------------------------------
+
+def cmd_bench_kernel(args) -> int:
+    from cablesvc.bench.kernel import INPUTS, as_dicts, run_kernel_bench
+
+    inputs = args.input or list(INPUTS)
+    if args.json:
+        res = run_kernel_bench(args.robot, args.model, args.params, args.ticks, inputs)
+        for d in as_dicts(res):
+            print(json.dumps(d))
+        return 0
+    from rich.progress import Progress
+    from rich.table import Table
+    con = _console()
+    with Progress(console=con, transient=True) as prog:
+        task = prog.add_task("kernel", total=args.ticks * len(inputs))
+        done = {}
+
+        def cb(kind, k, n):
+            done[kind] = k
+            prog.update(task, completed=sum(done.values()), description=f"{kind}")
+        res = run_kernel_bench(args.robot, args.model, args.params, args.ticks, inputs, progress=cb)
+    tb = Table(title=f"kernel latency per tick, {res[0].robot}, model {res[0].model}, {args.ticks} ticks, gc frozen")
+    for c in ("input", "p50 us", "p99 us", "p99.9 us", "max us", "alloc B/tick", "p99 / normal p99"):
+        tb.add_column(c, justify="right")
+    base = next((r.p99_us for r in res if r.input == "normal"), None)
+    for r in res:
+        tb.add_row(r.input, f"{r.p50_us:.1f}", f"{r.p99_us:.1f}", f"{r.p999_us:.1f}", f"{r.max_us:.1f}",
+                   f"{r.alloc_bytes_per_tick:.2f}", f"{r.p99_us / base:.2f}" if base else "-")
+    con.print(tb)
+    return 0
+
+
+# ---- parser ----------------------------------------------------------------------------
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="cablesvc", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG,
+        description="Real-time cable-force prediction with hysteresis for cable-driven parallel robots.")
+    from cablesvc import __version__
+    p.add_argument("--version", action="version", version=f"cablesvc {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    r = sub.add_parser("run", help="run the predictor (embedded demo by default)",
+                       description=cmd_run.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    r.add_argument("--robot", default="ipanema3", help="robot name or .toml path (default: ipanema3)")
+    r.add_argument("--params", help="cable-model parameter file (default: nominal amplitude model)")
+    r.add_argument("--scenario", default="trajectory", help="twin scenario to play (default: trajectory)")
+    r.add_argument("--duration", type=float, default=60.0, help="seconds of simulated operation (default 60)")
+    r.add_argument("--rate", type=float, default=1000.0, help="tick rate in Hz (default 1000)")
+    r.add_argument("--speed", type=float, default=1.0, help="playback speed factor; 0 = as fast as possible")
+    r.add_argument("--seed", type=int, default=0)
+    r.set_defaults(func=cmd_run)
+
+    s = sub.add_parser("simulate", help="write a recording from the digital twin",
+                       description="Digital twin: drives the robot and records pose, motor lengths, measured "
+                                   "forces (truth model + sensor noise) and temperature in the recording format.")
+    s.add_argument("--robot", default="ipanema3", help="robot name or .toml path")
+    s.add_argument("--scenario", default="hold-sine", help="scenario name; --list shows them")
+    s.add_argument("--out", help="output .mcap or .csv")
+    s.add_argument("--duration", type=float, default=None, help="seconds (default: the scenario's)")
+    s.add_argument("--rate", type=float, default=1000.0, help="tick rate in Hz")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--noise", type=float, default=0.1, help="force sensor noise std in N (default 0.1)")
+    s.add_argument("--effect", action="append", default=[], metavar="NAME[:MAG][@CABLES]",
+                   help="switch on extra truth physics, e.g. pulley:0.02@1,4 (repeatable)")
+    s.add_argument("--truth-params", help="parameter file of the truth base model")
+    s.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="scenario option, e.g. --set amplitudes=[1e-4,5e-4]")
+    s.add_argument("--list", action="store_true", help="list scenarios and effects")
+    s.set_defaults(func=cmd_simulate)
+
+    rb = sub.add_parser("robots", help="list or check robot definition files")
+    rb.add_argument("action", choices=["list", "check"])
+    rb.add_argument("files", nargs="*", help="files to check")
+    rb.set_defaults(func=cmd_robots)
+
+    b = sub.add_parser("bench", help="benchmarks (latency, accuracy, load)")
+    bsub = b.add_subparsers(dest="bench", metavar="BENCH")
+    bk = bsub.add_parser("kernel", help="per-tick latency of the fixed-time kernel",
+                         description="100 000 ticks with gc frozen; p50/p99/p99.9/max per tick for normal and "
+                                     "adversarial input (reversal every tick, slack, very large amplitudes).")
+    bk.add_argument("--robot", default="ipanema3")
+    bk.add_argument("--model", default="amplitude", help="model with nominal parameters (amplitude, linear)")
+    bk.add_argument("--params", help="parameter file instead of nominal parameters")
+    bk.add_argument("--ticks", type=int, default=100_000)
+    bk.add_argument("--input", action="append", choices=["normal", "reversal", "slack", "large"],
+                    help="only these inputs (repeatable; default all)")
+    bk.add_argument("--json", action="store_true", help="one JSON object per run")
+    bk.set_defaults(func=cmd_bench_kernel)
+    b.set_defaults(func=lambda a: (b.print_help(), 2)[1])
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    from cablesvc.config import RobotFileError
+    from cablesvc.config.params import ParamFileError
+    from cablesvc.recording import RecordingError
+    try:
+        return int(args.func(args) or 0)
+    except (RobotFileError, ParamFileError, RecordingError) as e:
+        print(f"cablesvc {args.command}: {e}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

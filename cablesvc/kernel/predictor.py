@@ -1,0 +1,192 @@
+"""The fixed-time per-tick kernel: one robot, one cable model, every control tick.
+
+Per tick it takes (t, pose or none, motor_length [m], optional measured force [N],
+optional temperature [deg C]) and returns, per cable: predicted force [N], elongation
+x = l(pose) - motor_length [m] (recording spec), wrap angle [rad], slack flag; the
+wrench residual A^T f + w [N, N m] (eq 2 of 002) and, with measured forces, the residual
+measured - predicted [N].
+
+All buffers are allocated in ``__init__``; a tick runs the same numpy operations
+whatever the data, with no Python branch on values and no array allocation (the pose
+path; see ``tests/test_kernel.py``). Outputs are views of the kernel's buffers that the
+next tick overwrites: copy what you keep.
+
+Without a pose on the bus the pose is found from the motor lengths by an elasto-static
+forward kinematics: a fixed number of damped Gauss-Newton (Levenberg-Marquardt) steps
+on the platform equilibrium A^T f + w = 0 with linear cable forces f = EA/l0 * x,
+warm-started from the last pose (first tick: the geometric FK of
+:class:`cablesvc.kinematics.ForwardKinematics` on the motor lengths). The step is
+dp = (A^T K A + lambda I)^-1 (A^T f + w) with K = diag(EA/l0), since moving the platform
+by dp changes the lengths by -A dp. Hysteresis shifts the forces by a few newtons, which
+moves the equilibrium pose by a second-order amount; the residual |A^T f + w| after the
+last step is reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cablesvc.config.params import ModelParams
+from cablesvc.config.robot import RobotGeometry
+from cablesvc.kinematics import ForwardKinematics, InverseKinematics
+from cablesvc.kinematics.ik import PLANAR_WRENCH_ROWS
+from cablesvc.kinematics.rotation import quat_multiply, rotvec_to_quat
+from cablesvc.models import AmplitudeDependent, CableModel
+
+
+@dataclass
+class TickOutput:
+    """Outputs of one tick. Arrays are the kernel's buffers (overwritten next tick)."""
+
+    t: float
+    force: np.ndarray            # (m,) predicted tension [N], never negative
+    elongation: np.ndarray       # (m,) x = l(pose) - motor_length [m]
+    wrap_angle: np.ndarray       # (m,) pulley wrap angle alpha [rad]
+    slack: np.ndarray            # (m,) bool: predicted tension below the slack threshold
+    wrench_residual: np.ndarray  # (6,) A^T f + w [N, N m]
+    measured: np.ndarray         # (m,) measured force [N], NaN when the bus has none
+    residual: np.ndarray         # (m,) measured - predicted [N], NaN without measurements
+    position: np.ndarray         # (3,) pose used [m]
+    orientation: np.ndarray      # (4,) [qx, qy, qz, qw]
+    amplitude: np.ndarray        # (m,) elongation amplitude estimate [m] (amplitude model; NaN otherwise)
+    temperature: float           # deg C, NaN when absent
+    pose_from_fk: bool           # True when the pose came from the elasto-static FK
+    fk_residual: float           # |A^T f + w| after the FK [N]; 0 with a measured pose
+
+
+class Predictor:
+    """Fixed-time force predictor for one robot. See the module docstring."""
+
+    def __init__(self, geom: RobotGeometry, params: ModelParams, *, fk_iterations: int = 4,
+                 fk_damping: float = 1e-3, slack_threshold: float | np.ndarray | None = None):
+        self.geom = geom
+        self.params = params
+        m = self.n_cables = geom.n_cables
+        self.model: CableModel = params.build(m, lanes=1)
+        self._is_amplitude = isinstance(self.model, AmplitudeDependent)
+        self.ik = InverseKinematics(geom, 1)
+        self.fk_geometric = ForwardKinematics(geom)
+        self.fk_iterations = int(fk_iterations)
+        self.fk_damping = float(fk_damping)
+        self._rows = np.array(PLANAR_WRENCH_ROWS if geom.planar else range(6))
+        thr = np.asarray(geom.force_min if slack_threshold is None else slack_threshold, float)
+        self.slack_threshold = np.ascontiguousarray(np.broadcast_to(thr, (m,)))
+        self._ea = np.ascontiguousarray(geom.ea, dtype=float)
+        # input buffers
+        self._pos = np.zeros((1, 3))
+        self._quat = np.zeros((1, 4))
+        self._quat[0, 3] = 1.0
+        self._ml = np.zeros((1, m))
+        # output buffers
+        self._x = np.zeros((1, m))
+        self._f = np.zeros(m)
+        self._slack = np.zeros(m, dtype=bool)
+        self._wres = np.zeros(6)
+        self._meas = np.full(m, np.nan)
+        self._res = np.full(m, np.nan)
+        self._nan_m = np.full(m, np.nan)
+        self._amp = np.full(m, np.nan)
+        self._f_model = None
+        self._AT = None
+        self._w = None
+        self.state = None
+        self._t_prev = None
+        self._have_pose = False
+        self.ticks = 0
+
+    # -- state ------------------------------------------------------------------------
+    def reset(self, x0: np.ndarray | None = None) -> None:
+        """Forget the history: the next tick starts the model at rest."""
+        self.state = None
+        self._t_prev = None
+        self._have_pose = False
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """Everything needed to continue exactly where this kernel is (hysteresis state,
+        last pose, last time): for atomic snapshots."""
+        if self.state is None:
+            return {}
+        d = {f"model.{k}": v for k, v in self.state.as_dict().items()}
+        d["pose.position"] = self._pos.copy()
+        d["pose.orientation"] = self._quat.copy()
+        d["t_prev"] = np.array([self._t_prev])
+        return d
+
+    def load_state_dict(self, d: dict[str, np.ndarray]) -> None:
+        self.state = self.model.create_state(0.0)
+        self.state.load_dict({k[6:]: v for k, v in d.items() if k.startswith("model.")})
+        self._pos[...] = d["pose.position"]
+        self._quat[...] = d["pose.orientation"]
+        self._t_prev = float(d["t_prev"][0])
+        self._have_pose = True
+
+    # -- the tick ---------------------------------------------------------------------
+    def tick(self, t: float, motor_length, position=None, orientation=None, force=None,
+             temperature: float | None = None) -> TickOutput:
+        ml = self._ml
+        np.copyto(ml[0], motor_length)
+        from_fk = position is None or orientation is None
+        if from_fk:
+            fk_res = self._elastostatic_fk()
+        else:
+            np.copyto(self._pos[0], position)
+            np.copyto(self._quat[0], orientation)
+            fk_res = 0.0
+        ik = self.ik(self._pos, self._quat)
+        x = self._x
+        np.subtract(ik.length, ml, x)
+        if self.state is None:
+            self.state = self.model.create_state(x)
+            self._t_prev = t
+        dt = max(t - self._t_prev, 0.0)             # time going backwards is the source's to reject
+        self._t_prev = t
+        fm = self.model.step(self.state, x, dt, ml)
+        f = self._f
+        np.maximum(fm[0], 0.0, out=f)                # a cable cannot push
+        np.less(fm[0], self.slack_threshold, out=self._slack)
+        AT = self.ik.structure_matrix()
+        w = self.ik.platform_wrench()
+        np.matmul(AT[0], f, out=self._wres)
+        np.add(self._wres, w[0], self._wres)
+        np.copyto(self._meas, self._nan_m if force is None else force)
+        np.subtract(self._meas, f, self._res)
+        if self._is_amplitude:                        # fixed when built, not a data branch
+            np.copyto(self._amp, self.state.amplitude[0])
+        self.ticks += 1
+        return TickOutput(
+            t=t, force=f, elongation=x[0], wrap_angle=ik.wrap_angle[0], slack=self._slack,
+            wrench_residual=self._wres, measured=self._meas, residual=self._res, position=self._pos[0],
+            orientation=self._quat[0], amplitude=self._amp,
+            temperature=float("nan") if temperature is None else float(temperature),
+            pose_from_fk=from_fk, fk_residual=fk_res)
+
+    def _elastostatic_fk(self) -> float:
+        """Pose from motor lengths: fixed-count damped Gauss-Newton on A^T f + w = 0."""
+        ml = self._ml
+        if not self._have_pose:
+            res = self.fk_geometric.solve(ml, self._pos, self._quat)
+            self._pos[...] = res.position
+            self._quat[...] = res.orientation
+            self._have_pose = True
+        rows = self._rows
+        k = self._ea / ml[0]
+        for _ in range(self.fk_iterations):
+            ik = self.ik(self._pos, self._quat)
+            x = ik.length[0] - ml[0]
+            f = k * x
+            AT = self.ik.structure_matrix()[0]
+            g = (AT @ f + self.ik.platform_wrench()[0])[rows]
+            ATr = AT[rows]
+            K = (ATr * k) @ ATr.T
+            K[np.diag_indices_from(K)] *= 1.0 + self.fk_damping
+            dp_r = np.linalg.solve(K, g)
+            dp = np.zeros(6)
+            dp[rows] = dp_r
+            self._pos[0] += dp[:3]
+            self._quat[0] = quat_multiply(rotvec_to_quat(dp[3:]), self._quat[0])
+        ik = self.ik(self._pos, self._quat)
+        f = k * (ik.length[0] - ml[0])
+        g = (self.ik.structure_matrix()[0] @ f + self.ik.platform_wrench()[0])[rows]
+        return float(np.linalg.norm(g))
