@@ -153,7 +153,7 @@ class Predictor:
         np.copyto(self._meas, self._nan_m if force is None else force)
         np.subtract(self._meas, f, self._res)
         if self._is_amplitude:                        # fixed when built, not a data branch
-            np.copyto(self._amp, self.state.amplitude[0])
+            np.copyto(self._amp, self.state.memory[1, 0])
         self.ticks += 1
         return TickOutput(
             t=t, force=f, elongation=x[0], wrap_angle=ik.wrap_angle[0], slack=self._slack,

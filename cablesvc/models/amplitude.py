@@ -12,7 +12,7 @@ from cablesvc.models.polynomial import update_direction
 
 TABLE_COLUMNS = ("K0", "K1", "K2", "K3", "S_a", "alpha")
 #: points of the uniform amplitude grid the tables are resampled on when the model is built
-GRID_POINTS = 256
+GRID_POINTS = 1024
 
 
 def sine_power_integral(alpha: np.ndarray) -> np.ndarray:
@@ -33,12 +33,18 @@ def damping_normaliser(alpha: np.ndarray) -> np.ndarray:
 class AmplitudeState(ModelState):
     x_prev: np.ndarray
     direction: np.ndarray
-    hi: np.ndarray             # elongation at the last maximum (reversal from + to -) [m]
-    lo: np.ndarray             # elongation at the last minimum [m]
-    t_rev: np.ndarray          # time of the last reversal [s]
-    half_period: np.ndarray    # time between the last two reversals [s]
+    memory: np.ndarray         # (4, lanes, cables): last reversal point [m], amplitude A [m],
+                               # half period [s], time of the last reversal [s]
     clock: np.ndarray          # (1,) time since create_state [s]
-    amplitude: np.ndarray      # current amplitude estimate A [m] (read-only output)
+
+    @property
+    def amplitude(self) -> np.ndarray:
+        """Amplitude estimate A [m]: half the distance between the last two reversal points."""
+        return self.memory[1]
+
+    @property
+    def half_period(self) -> np.ndarray:
+        return self.memory[2]
 
 
 class AmplitudeDependent(CableModel):
@@ -59,10 +65,11 @@ class AmplitudeDependent(CableModel):
     (``amplitudes`` [m], one table value per grid point, per cable, or per lane and cable),
     interpolated linearly and held constant outside the grid (eq 10 is one row of the
     table; the table is ``p_M,i = f_A,i(A)`` of Sec 3). For fixed-time lookup the tables
-    are resampled once, at build time, on a uniform grid of GRID_POINTS points.
+    are resampled once, at build time, on a uniform grid of GRID_POINTS points and read at
+    the nearest grid point (error at most half a step: 0.05 % of the amplitude range).
 
     A and w are estimated online from the last reversal points of the elongation:
-    A = (last maximum - last minimum) / 2 and w = pi / (time between the last two
+    A = |last reversal point - the one before| / 2 and w = pi / (time between the last two
     reversals). Until two reversals have been seen, ``amplitude_init`` and
     ``omega_init`` are used.
     """
@@ -104,101 +111,92 @@ class AmplitudeDependent(CableModel):
             raise ModelParameterError("amplitude: alpha must be >= 0")
         self.amplitude_grid = grid
         self.tables = {k: np.array(v) for k, v in tables.items()}
-        # uniform resampling
-        G = GRID_POINTS if nA > 1 else 2
-        lo, hi = grid[0], (grid[-1] if nA > 1 else grid[0] * 2)
-        ug = np.linspace(lo, hi, G)
-        res = np.empty((lanes, cables, G, len(TABLE_COLUMNS) + 1))
-        for j, name in enumerate(TABLE_COLUMNS):
-            t = tables[name]
-            if nA == 1:
-                res[..., j] = t[..., :1]
-            else:
-                flat = t.reshape(-1, nA)
-                res[..., j] = np.stack([np.interp(ug, grid, row) for row in flat]).reshape(lanes, cables, G)
-        res[..., -1] = damping_normaliser(res[..., 5])
-        self._a0 = lo
-        self._inv_da = (G - 1) / (hi - lo)
-        self._umax = (G - 1) - 1e-9
+        # uniform resampling, nearest-point lookup: with GRID_POINTS points the lookup error is
+        # at most half a grid step, 0.05 % of the amplitude range
+        G = GRID_POINTS if nA > 1 else 1
+        lo, hi = grid[0], grid[-1]
+        ug = np.linspace(lo, hi, G) if nA > 1 else grid[:1]
+        ncol = 6   # K0, K1, K2, K3, S_a * q(alpha), alpha
+        res = np.empty((lanes, cables, G, ncol))
+        for j, name in enumerate(("K0", "K1", "K2", "K3", "S_a", "alpha")):
+            flat = tables[name].reshape(-1, nA)
+            res[..., j] = np.stack([np.interp(ug, grid, row) for row in flat]).reshape(lanes, cables, G)
+        res[..., 4] *= damping_normaliser(res[..., 5])
         self._amin = float(lo)
-        ncol = len(TABLE_COLUMNS) + 1
+        self._inv_da = (G - 1) / (hi - lo) if nA > 1 else 0.0
+        self._shift = lo * self._inv_da - 0.5          # u = A*inv_da - shift, index = floor(u)
+        self._umax = (G - 1) + 0.25
         LC = lanes * cables
-        # Column-major flat tables: entry (j, lane*cables + cable, g) at j*LC*G + (lane*cables+cable)*G + g.
-        # Lookups are 1-D np.take calls on these, which numpy does without temporaries.
-        colmajor = np.moveaxis(res, -1, 0).reshape(ncol, LC, G)
-        self._tab = np.ascontiguousarray(colmajor).reshape(-1)
-        self._slope = np.ascontiguousarray(np.diff(colmajor, axis=2, append=colmajor[:, :, -1:])).reshape(-1)
-        self._base = (np.arange(ncol)[:, None] * (LC * G) + np.arange(LC)[None, :] * G).astype(np.intp)  # (ncol, LC)
-        self._rep = np.repeat(np.arange(LC, dtype=np.intp)[None, :], ncol, axis=0)            # (ncol, LC) -> lane/cable
-        # scratch, every array of the step's shape so that no ufunc broadcasts (broadcasting
+        # column-major flat table: entry (j, lane*cables + cable, g) at j*LC*G + (lane*cables + cable)*G + g;
+        # lookups are 1-D np.take calls on it, which numpy does without temporaries
+        self._tab = np.ascontiguousarray(np.moveaxis(res, -1, 0).reshape(ncol, LC, G)).reshape(-1)
+        self._base = (np.arange(ncol)[:, None] * (LC * G) + np.arange(LC)[None, :] * G).astype(np.intp)
+        self._rep6 = np.repeat(np.arange(LC, dtype=np.intp)[None, :], ncol, axis=0)
+        self._rep4 = np.repeat(np.arange(LC, dtype=np.intp)[None, :], 4, axis=0)
+        # scratch: every operand has the step's shape, so no ufunc broadcasts (broadcasting
         # with out= makes numpy allocate iterator buffers)
         sh = self.shape
         e = lambda: np.empty(sh)
-        self._dx, self._nd, self._d, self._mhi, self._mlo, self._e1, self._e2 = e(), e(), e(), e(), e(), e(), e()
-        self._u, self._fl, self._xi, self._p, self._r = e(), e(), e(), e(), e()
+        self._dx, self._nd, self._m, self._e, self._u, self._xi, self._p, self._r, self._aeff = (
+            e(), e(), e(), e(), e(), e(), e(), e(), e())
         self._idx = np.empty(sh, dtype=np.intp)
-        self._idx7 = np.empty((ncol, LC), dtype=np.intp)
+        self._idx6 = np.empty((ncol, LC), dtype=np.intp)
         self._vals = np.empty((ncol, LC))
-        self._dvals = np.empty((ncol, LC))
-        self._frac7 = np.empty((ncol, LC))
+        self._new = np.empty((4,) + sh)
+        self._m4 = np.empty((4,) + sh)
         self._cols = [self._vals[j].reshape(sh) for j in range(ncol)]
+        # flat views made once (a reshape per step would allocate a view object)
+        self._m_flat, self._m4_flat, self._idx_flat = self._m.reshape(-1), self._m4.reshape(4, -1), self._idx.reshape(-1)
 
     def create_state(self, x0=0.0) -> AmplitudeState:
         x0a = self._x0(x0)
         A0 = self.params["amplitude_init"]
-        return AmplitudeState(
-            x_prev=x0a, direction=np.ones(self.shape), hi=x0a + A0, lo=x0a - A0, t_rev=np.zeros(self.shape),
-            half_period=np.pi / self.params["omega_init"], clock=np.zeros(1), amplitude=A0.copy())
+        mem = np.empty((4,) + self.shape)
+        mem[0] = x0a - A0                               # last reversal point
+        mem[1] = A0                                     # amplitude
+        mem[2] = np.pi / self.params["omega_init"]      # half period
+        mem[3] = 0.0                                    # time of the last reversal
+        return AmplitudeState(x_prev=x0a, direction=np.ones(self.shape), memory=mem, clock=np.zeros(1))
 
     def step(self, state: AmplitudeState, x, dt, l0=None):
-        sub, mul, add, np_max = np.subtract, np.multiply, np.add, np.maximum
-        dx, nd, d, mhi, mlo, e1, e2 = self._dx, self._nd, self._d, self._mhi, self._mlo, self._e1, self._e2
+        sub, mul, add = np.subtract, np.multiply, np.add
+        dx, nd, m, e, r = self._dx, self._nd, self._m, self._e, self._r
+        mem, new = state.memory, self._new
+        ext, A, T, t_rev = mem[0], mem[1], mem[2], mem[3]
         t_prev = float(state.clock[0])
         state.clock[0] = t_prev + dt
         sub(x, state.x_prev, dx)
-        # direction of motion with memory; d = old - new is +2 at a maximum, -2 at a minimum
-        update_direction(dx, state.direction, nd)
-        sub(state.direction, nd, d)
-        mul(d, 0.5, mhi)
-        np_max(mhi, 0.0, out=mhi)               # 1 at a maximum, else 0
-        mul(d, -0.5, mlo)
-        np_max(mlo, 0.0, out=mlo)               # 1 at a minimum, else 0
-        # the reversal point is the previous sample: hi += mhi (x_prev - hi), lo likewise
-        sub(state.x_prev, state.hi, e1)
-        mul(e1, mhi, e1)
-        add(state.hi, e1, state.hi)
-        sub(state.x_prev, state.lo, e1)
-        mul(e1, mlo, e1)
-        add(state.lo, e1, state.lo)
-        # half period and time of the last reversal, updated at any reversal
-        add(mhi, mlo, mhi)
-        sub(t_prev, state.t_rev, e1)            # time since last reversal
-        sub(e1, state.half_period, e2)
-        mul(e2, mhi, e2)
-        add(state.half_period, e2, state.half_period)
-        mul(e1, mhi, e1)
-        add(state.t_rev, e1, state.t_rev)
-        # amplitude A = (max - min)/2, not below the table's smallest amplitude
-        A = state.amplitude
-        sub(state.hi, state.lo, A)
-        mul(A, 0.5, A)
-        np_max(A, self._amin, out=A)
-        # table lookup at A: uniform grid, linear interpolation, 1-D takes only
-        u, fl, idx = self._u, self._fl, self._idx
-        sub(A, self._a0, u)
-        mul(u, self._inv_da, u)
+        update_direction(dx, state.direction, nd)       # sgn(v) with memory
+        # m = 1 at a reversal (old and new direction differ), else 0
+        mul(state.direction, nd, m)
+        mul(m, -0.5, m)
+        add(m, 0.5, m)
+        # at a reversal (the previous sample is the turning point):
+        #   A <- |x_prev - last reversal point| / 2, half period <- t_prev - t_rev,
+        #   last reversal point <- x_prev, t_rev <- t_prev; all four as one blend
+        sub(state.x_prev, ext, e)
+        np.absolute(e, new[1])
+        mul(new[1], 0.5, new[1])
+        np.copyto(new[0], state.x_prev)
+        sub(t_prev, t_rev, new[2])
+        new[3].fill(t_prev)
+        np.take(self._m_flat, self._rep4, out=self._m4_flat, mode="clip")
+        sub(new, mem, new)
+        mul(new, self._m4, new)
+        add(mem, new, mem)
+        # A not below the table's smallest amplitude
+        aeff = self._aeff
+        np.maximum(A, self._amin, out=aeff)
+        # table lookup at A: nearest point of the uniform grid
+        u, idx = self._u, self._idx
+        mul(aeff, self._inv_da, u)
+        sub(u, self._shift, u)
         np.minimum(u, self._umax, out=u)
-        np.floor(u, fl)
-        sub(u, fl, u)                           # fractional position between grid points
-        np.copyto(idx, fl, casting="unsafe")
-        np.take(idx.reshape(-1), self._rep, out=self._idx7, mode="clip")
-        add(self._idx7, self._base, self._idx7)
-        np.take(self._tab, self._idx7, out=self._vals, mode="clip")
-        np.take(self._slope, self._idx7, out=self._dvals, mode="clip")
-        np.take(u.reshape(-1), self._rep, out=self._frac7, mode="clip")
-        mul(self._dvals, self._frac7, self._dvals)
-        add(self._vals, self._dvals, self._vals)
-        K0, K1, K2, K3, Sa, alpha, q = self._cols
+        np.copyto(idx, u, casting="unsafe")             # truncation = floor (u >= 0)
+        np.take(self._idx_flat, self._rep6, out=self._idx6, mode="clip")
+        add(self._idx6, self._base, self._idx6)
+        np.take(self._tab, self._idx6, out=self._vals, mode="clip")
+        K0, K1, K2, K3, Sq, alpha = self._cols
         # polynomial spring part (Horner)
         xi, p = self._xi, self._p
         sub(x, self.params["x_center"], xi)
@@ -208,21 +206,24 @@ class AmplitudeDependent(CableModel):
         add(p, K1, p)
         mul(p, xi, p)
         add(p, K0, p)
-        # damping: S_a q / A * (|v| / (A w))^alpha * sgn(v), with |v|/(A w) = |dx| T_half / (dt pi A)
-        r = self._r
+        # damping S_a q / A (|v| / (A w))^alpha sgn(v), with |v| / (A w) = |dx| T_half / (dt pi A)
         np.absolute(dx, r)
-        mul(r, state.half_period, r)
-        mul(A, max(dt, 1e-12) * np.pi, e1)
-        np.divide(r, e1, r)
+        mul(r, T, r)
+        mul(aeff, max(dt, 1e-12) * np.pi, e)
+        np.divide(r, e, r)
         np.power(r, alpha, r)
-        mul(r, Sa, r)
-        mul(r, q, r)
-        np.divide(r, A, r)
+        mul(r, Sq, r)
+        np.divide(r, aeff, r)
         mul(r, nd, r)
         add(p, r, self.force)
         np.copyto(state.direction, nd)
         np.copyto(state.x_prev, x)
         return self.force
+
+    @staticmethod
+    def amplitude(state: "AmplitudeState") -> np.ndarray:
+        """Current amplitude estimate [m] (a view of the state)."""
+        return state.memory[1]
 
     def omega(self, state: AmplitudeState) -> np.ndarray:
         """Current angular-frequency estimate [rad/s]."""
