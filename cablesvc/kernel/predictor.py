@@ -88,9 +88,20 @@ class Predictor:
         self._res = np.full(m, np.nan)
         self._nan_m = np.full(m, np.nan)
         self._amp = np.full(m, np.nan)
-        self._f_model = None
-        self._AT = None
-        self._w = None
+        self._ml0 = self._ml[0]
+        self._pos0 = self._pos[0]
+        self._quat0 = self._quat[0]
+        self._x0 = self._x[0]
+        self._AT0 = self.ik.AT[0]
+        self._w0 = self.ik.wrench[0]
+        self._wrap0 = self.ik.state.wrap_angle[0]
+        self._amp_src = None
+        # one output object, updated in place every tick
+        self.out = TickOutput(
+            t=0.0, force=self._f, elongation=self._x0, wrap_angle=self._wrap0, slack=self._slack,
+            wrench_residual=self._wres, measured=self._meas, residual=self._res, position=self._pos0,
+            orientation=self._quat0, amplitude=self._amp, temperature=float("nan"), pose_from_fk=False,
+            fk_residual=0.0)
         self.state = None
         self._t_prev = None
         self._have_pose = False
@@ -121,18 +132,25 @@ class Predictor:
         self._quat[...] = d["pose.orientation"]
         self._t_prev = float(d["t_prev"][0])
         self._have_pose = True
+        if self._is_amplitude:
+            self._amp_src = self.state.memory[1, 0]
 
     # -- the tick ---------------------------------------------------------------------
     def tick(self, t: float, motor_length, position=None, orientation=None, force=None,
              temperature: float | None = None) -> TickOutput:
+        """One control tick. ``motor_length`` (m,) [m]; ``position`` (3,) [m] and
+        ``orientation`` (4,) [qx, qy, qz, qw] or None (then the elasto-static FK runs);
+        ``force`` (m,) measured [N] or None; ``temperature`` [deg C] or None. Inputs must be
+        numpy float arrays of the right shape (the service checks them before the kernel).
+        Returns ``self.out``, updated in place."""
         ml = self._ml
-        np.copyto(ml[0], motor_length)
+        np.copyto(self._ml0, motor_length)
         from_fk = position is None or orientation is None
         if from_fk:
             fk_res = self._elastostatic_fk()
         else:
-            np.copyto(self._pos[0], position)
-            np.copyto(self._quat[0], orientation)
+            np.copyto(self._pos0, position)
+            np.copyto(self._quat0, orientation)
             fk_res = 0.0
         ik = self.ik(self._pos, self._quat)
         x = self._x
@@ -140,27 +158,29 @@ class Predictor:
         if self.state is None:
             self.state = self.model.create_state(x)
             self._t_prev = t
+            if self._is_amplitude:
+                self._amp_src = self.state.memory[1, 0]
         dt = max(t - self._t_prev, 0.0)             # time going backwards is the source's to reject
         self._t_prev = t
-        fm = self.model.step(self.state, x, dt, ml)
+        fm = self.model.step(self.state, x, dt, ml)[0]
         f = self._f
-        np.maximum(fm[0], 0.0, out=f)                # a cable cannot push
-        np.less(fm[0], self.slack_threshold, out=self._slack)
-        AT = self.ik.structure_matrix()
-        w = self.ik.platform_wrench()
-        np.matmul(AT[0], f, out=self._wres)
-        np.add(self._wres, w[0], self._wres)
+        np.maximum(fm, 0.0, out=f)                   # a cable cannot push
+        np.less(fm, self.slack_threshold, out=self._slack)
+        self.ik.structure_matrix()
+        self.ik.platform_wrench()
+        np.matmul(self._AT0, f, out=self._wres)
+        np.add(self._wres, self._w0, self._wres)
         np.copyto(self._meas, self._nan_m if force is None else force)
         np.subtract(self._meas, f, self._res)
         if self._is_amplitude:                        # fixed when built, not a data branch
-            np.copyto(self._amp, self.state.memory[1, 0])
+            np.copyto(self._amp, self._amp_src)
         self.ticks += 1
-        return TickOutput(
-            t=t, force=f, elongation=x[0], wrap_angle=ik.wrap_angle[0], slack=self._slack,
-            wrench_residual=self._wres, measured=self._meas, residual=self._res, position=self._pos[0],
-            orientation=self._quat[0], amplitude=self._amp,
-            temperature=float("nan") if temperature is None else float(temperature),
-            pose_from_fk=from_fk, fk_residual=fk_res)
+        out = self.out
+        out.t = t
+        out.temperature = float("nan") if temperature is None else float(temperature)
+        out.pose_from_fk = from_fk
+        out.fk_residual = fk_res
+        return out
 
     def _elastostatic_fk(self) -> float:
         """Pose from motor lengths: fixed-count damped Gauss-Newton on A^T f + w = 0."""
