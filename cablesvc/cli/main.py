@@ -95,7 +95,7 @@ def cmd_run(args) -> int:
 def cmd_simulate(args) -> int:
     from cablesvc.config import load_robot
     from cablesvc.config.params import load_params
-    from cablesvc.simulate import SCENARIOS, TruthConfig, effect_from_spec, list_effects
+    from cablesvc.simulate import SCENARIOS, TruthConfig, effect_from_spec, list_effects, simulate_recording
 
     if args.list:
         con = _console()
