@@ -102,7 +102,7 @@ def cmd_simulate(args) -> int:
         con.print("[bold]scenarios[/]")
         for name, fn in SCENARIOS.items():
             con.print(f"  {name:16s} {(fn.__doc__ or '').strip().splitlines()[0]}")
-        con.print("[bold]effects[/] (--effect NAME[:MAGNITUDE][@CABLES])")
+        con.print("[bold]effects[/] (--effect NAME\\[:MAGNITUDE]\\[@CABLES])")
         for line in list_effects():
             con.print(f"  {line}")
         return 0
@@ -258,10 +258,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     from cablesvc.config import RobotFileError
     from cablesvc.config.params import ParamFileError
+    from cablesvc.models import ModelParameterError
     from cablesvc.recording import RecordingError
+    from cablesvc.simulate import SimulationError
     try:
         return int(args.func(args) or 0)
-    except (RobotFileError, ParamFileError, RecordingError) as e:
+    except (RobotFileError, ParamFileError, RecordingError, SimulationError, ModelParameterError) as e:
         print(f"cablesvc {args.command}: {e}", file=sys.stderr)
         return 1
 

@@ -170,10 +170,12 @@ def default_params(ea: np.ndarray, cable_length: np.ndarray, model: str = "ampli
     """Nominal parameters for a robot without identified ones, from its cables' E*A [N] and
     a typical free length [m] per cable.
 
-    The amplitude model uses k = EA / L as K1 at the smallest amplitude, softening by 15 %
-    towards 1.5 mm, a loss factor of 0.1 (S_a = 0.1 pi k A^2) and alpha = 0.3: values of the
-    order 002 reports for Dyneema at 60 N pretension (amplitudes 0.1-1.5 mm). These are
-    nominal, not identified: the service reports them as such.
+    The amplitude model uses K1 = k = EA / L at every amplitude, a loss factor of 0.1
+    (S_a = 0.1 pi k A^2) and alpha = 0.3: values of the order 002 reports for Dyneema at
+    60 N pretension (amplitudes 0.1-1.5 mm). K1 is kept constant because with K0 = 0 and
+    x_center = 0 the polynomial carries the whole tension, and an amplitude-dependent K1
+    would make the predicted tension jump whenever the amplitude estimate changes. These
+    are nominal, not identified: the service reports them as such.
     """
     k = np.asarray(ea, float) / np.asarray(cable_length, float)
     if model == "linear":
@@ -181,7 +183,7 @@ def default_params(ea: np.ndarray, cable_length: np.ndarray, model: str = "ampli
                            identification={"nominal": True})
     if model == "amplitude":
         amps = np.array([1e-4, 2.5e-4, 5e-4, 1e-3, 1.5e-3])
-        soft = np.array([1.0, 0.97, 0.94, 0.89, 0.85])
+        soft = np.ones(5)
         K1 = np.outer(k, soft)
         Sa = 0.1 * np.pi * K1 * amps ** 2
         return ModelParams(model="amplitude", tables={
