@@ -45,6 +45,9 @@ The structure matrix is A^T of eq 2 of 002: A^T f + w = 0 at static equilibrium.
 
 from __future__ import annotations
 
+import struct
+from functools import partial
+
 import numpy as np
 
 from cablesvc.config.robot import RobotGeometry
@@ -70,6 +73,25 @@ _TWO_PI = 2.0 * np.pi
 PLANAR_WRENCH_ROWS = (0, 1, 5)
 
 
+_NAN = float("nan")
+#: m; added to the copy of d2 used for |d_perp + EPS_SWIVEL ref| (so that norm is never 0;
+#: the same guard as adding 1e-300 to its square).
+_NORM_GUARD = 1e-150
+#: The documented IKState fields, in order.
+_STATE_FIELDS = (
+    "length",
+    "free_length",
+    "unit",
+    "wrap_angle",
+    "anchor_world",
+    "leave_point",
+    "swivel_angle",
+    "rotation",
+)
+#: Monomials q_k q_l (k <= l, q = [x, y, z, w]) fed to the pose matrix product, in order.
+_MONOMIALS = ((0, 0), (1, 1), (2, 2), (3, 3), (0, 1), (0, 2), (1, 2), (0, 3), (1, 3), (2, 3))
+
+
 class IKState:
     """Result of inverse kinematics for a batch of N poses and m cables (SI units).
 
@@ -87,6 +109,11 @@ class IKState:
     - ``swivel_angle`` (N,m) [rad] in (-pi, pi]: rotation of the wheel plane about e, from
       the cable's fixed reference direction; 0 without pulley.
     - ``rotation`` (N,3,3): platform rotation matrix R.
+
+    ``leave_point`` and ``swivel_angle`` of a state owned by an :class:`InverseKinematics`
+    are computed on their first access after each call (the per-tick path does not need
+    them); the arrays returned are still the same preallocated buffers every time. The
+    arrays may be non-contiguous views of the owner's work buffer.
     """
 
     __slots__ = (
@@ -95,18 +122,42 @@ class IKState:
         "unit",
         "wrap_angle",
         "anchor_world",
-        "leave_point",
-        "swivel_angle",
         "rotation",
+        "_leave_point",
+        "_swivel_angle",
+        "_owner",
     )
 
     def __init__(self, **arrays: np.ndarray):
-        for k in self.__slots__:
-            setattr(self, k, arrays[k])
+        self.length = arrays["length"]
+        self.free_length = arrays["free_length"]
+        self.unit = arrays["unit"]
+        self.wrap_angle = arrays["wrap_angle"]
+        self.anchor_world = arrays["anchor_world"]
+        self.rotation = arrays["rotation"]
+        self._leave_point = arrays["leave_point"]
+        self._swivel_angle = arrays["swivel_angle"]
+        self._owner: InverseKinematics | None = None
+
+    @property
+    def leave_point(self) -> np.ndarray:
+        """(N,m,3) [m], see the class docstring."""
+        owner = self._owner
+        if owner is not None:
+            owner._fill_leave_point()
+        return self._leave_point
+
+    @property
+    def swivel_angle(self) -> np.ndarray:
+        """(N,m) [rad], see the class docstring."""
+        owner = self._owner
+        if owner is not None:
+            owner._fill_swivel_angle()
+        return self._swivel_angle
 
     def copy(self) -> "IKState":
         """Independent deep copy (fresh arrays)."""
-        return IKState(**{k: getattr(self, k).copy() for k in self.__slots__})
+        return IKState(**{k: getattr(self, k).copy() for k in _STATE_FIELDS})
 
 
 def _swivel_reference(geom: RobotGeometry, e: np.ndarray) -> np.ndarray:
@@ -126,13 +177,100 @@ def _swivel_reference(geom: RobotGeometry, e: np.ndarray) -> np.ndarray:
     return ref
 
 
+def _monomial_map() -> np.ndarray:
+    """(9, 10): flattened R = this @ [q_k q_l / |q|^2 for (k, l) in _MONOMIALS] (unitless),
+    the symmetric form of QUAT_OUTER_TO_MATRIX."""
+    T = np.asarray(QUAT_OUTER_TO_MATRIX)
+    M = np.zeros((9, len(_MONOMIALS)))
+    for c, (k, l) in enumerate(_MONOMIALS):
+        M[:, c] = T[4 * k + l] + (T[4 * l + k] if k != l else 0.0)
+    return M
+
+
+def _noop() -> None:
+    """Nothing to do (single-pose instances export nothing)."""
+
+
+class _Layout:
+    """Construction-time helper: one flat float64 buffer cut into named contiguous
+    segments, in declaration order (the order matters: several numpy calls work on
+    windows spanning neighbouring segments), plus the index arithmetic of its blocks.
+
+    With N poses and m cables there are S = m*N slots; slot (i, n) is cable i of pose n.
+    A *row* holds one value per slot, in (i, n) order; a *vector* block holds a 3-vector
+    per slot, in (i, j, n) order; a *paired* row or vector interleaves two values per
+    slot (planes 0 and 1: the real and imaginary parts of its complex128 view)."""
+
+    def __init__(self, N: int, m: int):
+        self.N, self.m, self.S = N, m, m * N
+        self.off: dict[str, int] = {}
+        self.size = 0
+
+    def add(self, name: str, rows: int) -> None:
+        """Next segment: ``rows`` rows of S values."""
+        self.off[name] = self.size
+        self.size += rows * self.S
+
+    def add_pose(self, name: str, rows: int) -> None:
+        """Next segment: ``rows`` rows of N values (one per pose)."""
+        self.off[name] = self.size
+        self.size += rows * self.N
+
+    def row(self, name: str, q: int = 0) -> np.ndarray:
+        """(m, N) indices of plain row q of segment ``name``."""
+        return self.off[name] + q * self.S + np.arange(self.S).reshape(self.m, self.N)
+
+    def vec(self, name: str) -> np.ndarray:
+        """(m, 3, N) indices of the plain vector block ``name``."""
+        return self.off[name] + np.arange(3 * self.S).reshape(self.m, 3, self.N)
+
+    def prow(self, name: str, plane: int) -> np.ndarray:
+        """(m, N) indices of plane ``plane`` of the paired row ``name``."""
+        return self.off[name] + 2 * np.arange(self.S).reshape(self.m, self.N) + plane
+
+    def pvec(self, name: str, plane: int) -> np.ndarray:
+        """(m, 3, N) indices of plane ``plane`` of the paired vector block ``name``."""
+        return self.off[name] + 2 * np.arange(3 * self.S).reshape(self.m, 3, self.N) + plane
+
+
 class InverseKinematics:
     """Pulley-aware inverse kinematics for a fixed batch size, allocation-free per call.
 
     ``geom``: the robot; ``batch``: number N of poses per call. All work arrays are
-    allocated here; :meth:`__call__` only runs numpy ufuncs/einsum/matmul with ``out=`` on
-    them (no Python loops over cables or poses, no data-dependent branches), so it runs in
-    fixed time and does not allocate array memory.
+    allocated here; :meth:`__call__`, :meth:`structure_matrix` and
+    :meth:`platform_wrench` only run numpy calls with output arguments on them (no Python
+    loops over cables or poses, no data-dependent branches), so they run in fixed time and
+    do not allocate array memory. The result arrays may be non-contiguous views.
+
+    Implementation (for speed at N = 1, where a numpy call costs ~0.5 us whatever its
+    size, so the number of calls is what counts): every per-cable quantity is a row of
+    S = m*N values in one flat buffer, and each call works on a whole window of
+    neighbouring rows (no broadcasting, no 2-D strided views, no temporaries):
+
+    - The pose enters through two products with constant matrices. The rotation is
+      quadratic in the quaternion, so v = [q_k q_l / |q|^2 (10 products), r, 1] (Python
+      floats at N = 1) times K1 gives R b_i + r, R b_i, R and the gravity moment at once.
+      d = (R b_i + r) - C_i is one subtraction (the rounding of eq 1, so an anchor exactly
+      on a swivel axis gives d_perp = 0 exactly), and a block-diagonal K2 times [d; 1]
+      gives the coordinates in the fixed orthonormal basis (e, ref, e x ref) of each
+      pulley: de, d1, d2 (plus d1 + EPS_SWIVEL, d_perp + EPS_SWIVEL ref and constants).
+    - |d_perp| = hypot(d1, d2), vx = |d_perp| - r; lf^2 = Re[(vx + i r)^2] + de^2 with one
+      complex multiplication and one addition, and the clamped square root as the real
+      part of one complex square root (sqrt(x + 0i) = sqrt(max(x, 0)) + i ...).
+    - One arctan2 on [r, vx, lf] / [lf, de, -r] gives [delta, atan2(vx, de), delta + pi/2],
+      one addition [alpha, alpha + pi/2], one sin [sin alpha, cos alpha].
+    - The wrap angle is max(mod(alpha + tol, P) - tol, 0) (P = 2 pi; straight cables use
+      P = tol, which gives exactly 0). Then one complex multiplication
+      (lf - i r)(1 + i wa) and (cos a + i sin a / |x|)(-e_j + i x_j), x = d_perp +
+      EPS_SWIVEL ref, gives length = lf + r wa and u_j = -(cos a e_j + sin a x'_j) as
+      real parts.
+    - :meth:`structure_matrix` gathers u and R b_i in component-major order with one
+      ``take`` and forms the moments with one multiplication and one subtraction (the
+      same arithmetic as :func:`structure_matrix`); :meth:`platform_wrench` is computed
+      by the pose product.
+
+    Batches N > 1 run the same calls on longer rows (the quaternion products are then
+    vectorised) and gather the results into contiguous (N, ...) arrays with ``take``.
     """
 
     def __init__(self, geom: RobotGeometry, batch: int):
@@ -141,185 +279,518 @@ class InverseKinematics:
         self.geom = geom
         self.batch = N = int(batch)
         self.n_cables = m = int(geom.n_cables)
+        S = m * N
         f8 = np.float64
 
-        # constants per cable
-        self._b = np.array(geom.platform_anchors, dtype=f8)
-        self._C = np.array(geom.pulley_center, dtype=f8)
-        self._mask = np.array(geom.has_pulley, dtype=f8)
-        self._r = np.array(geom.pulley_radius, dtype=f8) * self._mask
-        self._r2 = self._r * self._r
+        # ---- per-cable constants -------------------------------------------------------
+        b = np.array(geom.platform_anchors, dtype=f8)
+        C = np.array(geom.pulley_center, dtype=f8)
+        pulley = np.asarray(geom.has_pulley, dtype=bool)
+        mask = pulley.astype(f8)
+        r = np.array(geom.pulley_radius, dtype=f8) * mask
         e = np.array(geom.pulley_axis, dtype=f8)
-        e[~np.asarray(geom.has_pulley)] = (0.0, 0.0, 1.0)  # straight cables: any unit e
-        self._e = e
+        e[~pulley] = (0.0, 0.0, 1.0)  # straight cables: any unit e
+        # the local basis must be orthonormal; robot files give unit axes within 1e-6
+        # (exactly for the shipped robots, where this division changes nothing)
+        e /= np.linalg.norm(e, axis=1, keepdims=True)
         ref = _swivel_reference(geom, e)
-        self._ref = ref
-        self._eps_ref = EPS_SWIVEL * ref
-        self._s2 = np.cross(e, ref)
-        self._T = np.array(QUAT_OUTER_TO_MATRIX)
+        s2 = np.cross(e, ref)
+        P = np.eye(3)[None] - e[:, :, None] * e[:, None, :]  # (m,3,3) projector off e
+        mg = np.asarray(geom.gravity, dtype=f8) * float(geom.mass)
+        cog = np.array(geom.center_of_gravity, dtype=f8)
+        Smg = _moment_matrix(mg)
 
-        # work arrays
-        self._q = np.zeros((N, 4))
-        self._q_col = self._q[:, :, None]
-        self._q_row = self._q[:, None, :]
-        self._QQ = np.zeros((N, 4, 4))
-        self._QQ16 = self._QQ.reshape(N, 16)
-        self._n2 = np.zeros(N)
-        self._n2_col = self._n2[:, None]
-        self.rotation = np.zeros((N, 3, 3))
-        self._R9 = self.rotation.reshape(N, 9)
-        self._pos = np.zeros((N, 3))
-        self._pos_v = self._pos[:, None, :]
+        # ---- the flat work buffer ------------------------------------------------------
+        L = _Layout(N, m)
+        L.add("C", 3)
+        L.add("awp", 3)  # pose product: R b_i + r        (i, j, n)
+        L.add("aw", 3)  #               R b_i            (i, j, n)
+        L.add_pose("r9", 9)  #          R (row-major)
+        L.add_pose("wr", 6)  #          [m g; (R c) x m g]
+        L.add("d", 3)  # d = (R b_i + r) - C          (i, j, n)
+        L.add_pose("one", 1)  # [d; 1] feeds the local-coordinate product
+        # paired rows [r, vx, lf, de, -r] (plane 0): arctan2 of [r, vx, lf] / [lf, de, -r];
+        # complex [vx + i r, lf + 0i, de + 0i] squared gives vx^2 - r^2 and de^2
+        L.add("w_r", 2)
+        L.add("w_vx", 2)
+        L.add("w_lf", 2)  # local-coordinate product (D2) from here ...
+        L.add("w_de", 2)
+        L.add("w_nr", 2)
+        L.add("d1", 1)
+        L.add("p1", 1)  # d1 + EPS_SWIVEL
+        L.add("d2", 1)
+        L.add("d2g", 1)  # d2 + _NORM_GUARD
+        L.add("bu", 6)  # complex -e_j + i x_j (i, j, n) ... to here
+        L.add("bl", 2)  # complex 1 + i wa
+        L.add("ho", 2)  # [|d_perp|, |x|]
+        L.add("sqc", 6)
+        L.add("lfc", 2)  # complex lf^2 + 0i
+        L.add("o3", 3)  # [delta, atan2(vx, de), delta + pi/2]
+        L.add("a2", 2)  # [alpha, alpha + pi/2]
+        L.add("sc", 2)  # [sin a, cos a]
+        L.add("lw1", 1)  # (lazy) (1 - cos a) / |x|; must follow sc
+        for name in ("t", "tol", "per", "sp", "mask", "ones", "zero"):
+            L.add(name, 1)
+        L.add("outc", 8)  # complex [u_j + i ..., lf + r wa + i ...]
+        L.add("ps", 6)  # structure matrix products
+        L.add("lyc", 3)  # (lazy) [r, 0, r]
+        L.add("lk", 3)  # (lazy) [r sin a, 0, r (1 - cos a) / |x|]
+        L.add("la", 6)  # (lazy)
+        L.add("lp", 3)  # (lazy) leave point (i, j, n)
+        L.add("sw", 1)  # (lazy) swivel angle
+        o = L.off
+        d2_start, d2_stop = o["w_lf"], o["bl"]
+        M = self._buf = np.zeros(L.size)
 
-        self._d = np.zeros((N, m, 3))
-        self._xp = np.zeros((N, m, 3))
-        self._t3 = np.zeros((N, m, 3))
-        self._de = np.zeros((N, m))
-        self._de_v = self._de[..., None]
-        self._ns = np.zeros((N, m))
-        self._ns_v = self._ns[..., None]
-        self._vx = np.zeros((N, m))
-        self._t1 = np.zeros((N, m))
-        self._t1_v = self._t1[..., None]
-        self._t2 = np.zeros((N, m))
-        self._alpha = np.zeros((N, m))
-        self._ca = np.zeros((N, m))
-        self._ca_v = self._ca[..., None]
-        self._sa = np.zeros((N, m))
-        self._sa_v = self._sa[..., None]
+        def seg(name: str, start: int = 0, rows: int = 1) -> np.ndarray:
+            """Flat view of ``rows`` rows of segment ``name`` from row ``start``."""
+            s = o[name] + start * S
+            return M[s : s + rows * S]
 
-        # outputs
-        self.length = np.zeros((N, m))
-        self.free_length = np.zeros((N, m))
-        self.unit = np.zeros((N, m, 3))
-        self.wrap_angle = np.zeros((N, m))
-        self.anchor_world = np.zeros((N, m, 3))
-        self.leave_point = np.zeros((N, m, 3))
-        self.swivel_angle = np.zeros((N, m))
+        def plane(name: str, p: int, rows: int = 1, start: int = 0) -> np.ndarray:
+            """Plane ``p`` of ``rows`` paired rows from row ``start`` of ``name``, as a
+            stride-2 view."""
+            s = o[name] + 2 * start * S + p
+            return M[s : s + 2 * rows * S : 2]
+
+        def cplx(name: str, rows: int) -> np.ndarray:
+            """complex128 view of ``rows`` paired rows from ``name`` on."""
+            return M[o[name] : o[name] + 2 * rows * S].view(np.complex128)
+
+        def per_slot(vals) -> np.ndarray:
+            """(m,) per-cable values as an (m, N) slot array."""
+            return np.repeat(np.asarray(vals, dtype=f8)[:, None], N, axis=1)
+
+        M[L.vec("C")] = np.repeat(C[:, :, None], N, axis=2)
+        M[o["one"] : o["one"] + N] = 1.0
+        M[L.prow("w_r", 0)] = per_slot(r)
+        M[L.prow("w_vx", 1)] = per_slot(r)
+        M[L.row("tol")] = _FOLD_TOL
+        M[L.row("per")] = per_slot(np.where(pulley, _TWO_PI, _FOLD_TOL))
+        M[L.row("mask")] = per_slot(mask)
+        M[L.row("ones")] = 1.0
+        M[L.prow("bl", 0)] = 1.0
+        M[L.row("lyc", 0)] = per_slot(r)
+        M[L.row("lyc", 2)] = per_slot(r)
+
+        # ---- K1: v = [q_k q_l / |q|^2, r, 1] -> [R b + r, R b, R, wrench] -----------------
+        Rmap = _monomial_map()
+        unit3 = np.eye(3)
+
+        def k1_row(Acoef: np.ndarray, Bcoef=(0.0, 0.0, 0.0), c: float = 0.0) -> np.ndarray:
+            """Row of K1 for sum_ab Acoef_ab R_ab + Bcoef . r + c."""
+            return np.concatenate([np.ravel(Acoef) @ Rmap, Bcoef, [c]])
+
+        rows1 = [k1_row(np.outer(unit3[j], b[i]), unit3[j]) for i in range(m) for j in range(3)]
+        rows1 += [k1_row(np.outer(unit3[j], b[i])) for i in range(m) for j in range(3)]
+        rows1 += [k1_row(np.outer(unit3[a], unit3[c])) for a in range(3) for c in range(3)]
+        rows1 += [k1_row(np.zeros((3, 3)), c=mg[j]) for j in range(3)]
+        rows1 += [k1_row(np.outer(Smg[j], cog)) for j in range(3)]  # (S R c)_j
+        K1 = np.array(rows1)
+        assert K1.shape[0] * N == o["d"] - o["awp"]
+
+        # ---- K2: [d; 1] -> local coordinates, in buffer order (N = 1) -------------------
+        n_d = 3 * m + 1
+        dest, rows2 = [], []  # index of pose 0's value in M, and its row of K2
+
+        def k2(coef=None, const: float = 0.0, i: int = 0) -> np.ndarray:
+            row = np.zeros(n_d)
+            if coef is not None:
+                row[3 * i : 3 * i + 3] = coef
+            row[-1] = const
+            return row
+
+        spec = []  # (index array (m, N) or (m, 3, N), callable (i[, j]) -> K2 row)
+        spec.append((L.prow("w_lf", 0), lambda i: k2()))
+        spec.append((L.prow("w_lf", 1), lambda i: k2()))
+        spec.append((L.prow("w_de", 0), lambda i: k2(e[i], 0.0, i)))
+        spec.append((L.prow("w_de", 1), lambda i: k2()))
+        spec.append((L.prow("w_nr", 0), lambda i: k2(None, -r[i])))
+        spec.append((L.prow("w_nr", 1), lambda i: k2()))
+        spec.append((L.row("d1"), lambda i: k2(ref[i], 0.0, i)))
+        spec.append((L.row("p1"), lambda i: k2(ref[i], EPS_SWIVEL, i)))
+        spec.append((L.row("d2"), lambda i: k2(s2[i], 0.0, i)))
+        spec.append((L.row("d2g"), lambda i: k2(s2[i], _NORM_GUARD, i)))
+        for idx, fn in spec:
+            for i in range(m):
+                dest.append(idx[i])
+                rows2.append(fn(i))
+        for p, fn in (
+            (0, lambda i, j: k2(None, -e[i, j])),
+            (1, lambda i, j: k2(P[i, j], EPS_SWIVEL * ref[i, j], i)),  # x = d_perp + eps ref
+        ):
+            idx = L.pvec("bu", p)
+            for i in range(m):
+                for j in range(3):
+                    dest.append(idx[i, j])
+                    rows2.append(fn(i, j))
+        dest = np.array(dest)  # (R2, N)
+        order = np.argsort(dest[:, 0], kind="stable")
+        dest, K2 = dest[order], np.array(rows2)[order]
+        assert np.array_equal(np.sort(dest.ravel()), np.arange(d2_start, d2_stop))
+
+        # ---- pose input and the two products ---------------------------------------------
+        d1o = M[o["awp"] : o["d"]]
+        d2o = M[d2_start:d2_stop]
+        dext = M[o["d"] : o["one"] + N]
+        if N == 1:
+            self._v = np.zeros(K1.shape[1])
+            self._v[-1] = 1.0
+            self._pack = struct.Struct(f"{K1.shape[1] - 1}d").pack_into
+            self._load = self._load_single
+            d1 = (self._v, np.ascontiguousarray(K1.T), d1o)
+            d2 = (dext, np.ascontiguousarray(K2.T), d2o)
+            self._d2_fix = _noop
+        else:
+            V = self._V = np.zeros((K1.shape[1], N))
+            V[-1] = 1.0
+            self._mono = V[0:10].reshape(-1)
+            self._mono4 = V[0:4]
+            self._vp = V[10:13].reshape(-1)
+            self._qab = np.zeros(20 * N)
+            self._qa = self._qab[: 10 * N]
+            self._qb = self._qab[10 * N :]
+            nn = np.arange(N)
+            ka = np.array([k for k, _ in _MONOMIALS])
+            kb = np.array([l for _, l in _MONOMIALS])
+            self._qab_idx = np.concatenate(
+                [(nn[None, :] * 4 + ka[:, None]).ravel(), (nn[None, :] * 4 + kb[:, None]).ravel()]
+            )
+            self._n2 = np.zeros(N)
+            self._n2rep = np.zeros(10 * N)
+            self._n2_idx = np.tile(nn, 10)
+            self._ones4 = np.ones(4)
+            self._p_idx = (nn[None, :] * 3 + np.arange(3)[:, None]).ravel()
+            self._load = self._load_batch
+            d1 = (K1, V, d1o.reshape(-1, N))
+            # the product gives (row of K2, pose) order; gather it into the buffer order
+            scratch = np.zeros(K2.shape[0] * N)
+            d2 = (K2, dext.reshape(n_d, N), scratch.reshape(-1, N))
+            fix = np.empty(d2_stop - d2_start, dtype=np.intp)
+            fix[(dest - d2_start).ravel()] = np.arange(K2.shape[0] * N)
+            self._d2_fix = partial(scratch.take, fix, None, d2o, "wrap")
+
+        # ---- gathers -------------------------------------------------------------------
+        # complex (cos a + i sin a / |x|) per (i, j, n), then (lf - i r) per slot
+        rep3 = lambda a: np.repeat(a[:, None, :], 3, axis=1)  # noqa: E731  (m,N)->(m,3,N)
+        idx1 = np.concatenate(
+            [
+                np.stack([rep3(L.row("sc", 1)), rep3(L.row("sp"))], axis=-1).ravel(),
+                np.stack([L.prow("w_lf", 0), L.prow("w_nr", 0)], axis=-1).ravel(),
+            ]
+        )
+        self._tk1 = np.zeros(8 * S)
+        # structure matrix, component-major (j, i, n): u_j, u_{j+2}, u_{j+1}, aw_{j+1}, aw_{j+2}
+        u_idx = L.pvec("outc", 0)  # real parts (the S lengths follow)
+        aw_idx = L.vec("aw")
+
+        def jmajor(idx: np.ndarray, shift: int) -> np.ndarray:
+            return np.roll(idx, -shift, axis=1).transpose(1, 0, 2).ravel()
+
+        idx2 = np.concatenate(
+            [jmajor(u_idx, 0), jmajor(u_idx, 2), jmajor(u_idx, 1), jmajor(aw_idx, 1), jmajor(aw_idx, 2)]
+        )
+        self._tk2 = np.zeros(15 * S)
+        # (lazy) leave point: [r sin a x3, r (1 - cos a)/|x| x3, -e, x]
+        idx3 = np.concatenate(
+            [
+                rep3(L.row("lk", 0)).ravel(),
+                rep3(L.row("lk", 2)).ravel(),
+                L.pvec("bu", 0).ravel(),
+                L.pvec("bu", 1).ravel(),
+            ]
+        )
+        self._tk3 = np.zeros(12 * S)
+        take = M.take
+        t1, t2, t3 = self._tk1, self._tk2, self._tk3
+
+        # ---- the views used per call ---------------------------------------------------
+        self._w = (
+            *d1,
+            M[o["awp"] : o["awp"] + 3 * S],
+            M[o["C"] : o["C"] + 3 * S],
+            M[o["d"] : o["d"] + 3 * S],
+            *d2,
+            self._d2_fix,
+            seg("d1", 0, 2),  # [d1, p1]
+            seg("d2", 0, 2),  # [d2, d2g]
+            seg("ho", 0, 2),
+            seg("ho"),  # |d_perp|
+            plane("w_r", 0),  # r
+            plane("w_vx", 0),  # vx
+            cplx("w_vx", 3),  # [vx + i r, lf + 0i, de + 0i]
+            seg("sqc", 0, 6).view(np.complex128),
+            plane("sqc", 0),  # vx^2 - r^2
+            plane("sqc", 0, 1, start=2),  # de^2
+            plane("lfc", 0),
+            cplx("lfc", 1),
+            cplx("w_lf", 1),  # lf + i junk
+            plane("w_r", 0, 3),  # [r, vx, lf]
+            plane("w_lf", 0, 3),  # [lf, de, -r]
+            seg("o3", 0, 3),
+            seg("o3", 1, 2),  # [atan2(vx, de), delta + pi/2]
+            seg("o3", 0, 2),  # [delta, atan2(vx, de)]
+            seg("a2", 0, 2),
+            seg("sc", 0, 2),
+            seg("a2"),  # alpha
+            seg("t"),
+            seg("tol"),
+            seg("sc"),  # sin a
+            seg("ho", 1),  # |x|
+            seg("sp"),
+            seg("per"),
+            take,
+            idx1,
+            t1,
+            plane("bl", 1),  # wa
+            t1.view(np.complex128),
+            cplx("bu", 4),  # [-e_j + i x_j, 1 + i wa]
+            cplx("outc", 4),
+        )
+        self._sm = (
+            take,
+            idx2,
+            t2,
+            t2[9 * S : 15 * S],  # [aw_{j+1}, aw_{j+2}]
+            t2[3 * S : 9 * S],  # [u_{j+2}, u_{j+1}]
+            seg("ps", 0, 6),
+            seg("ps", 0, 3),
+            seg("ps", 3, 3),
+            t2[3 * S : 6 * S],  # moment rows of A^T
+        )
+        self._lazy = (
+            seg("ones"),
+            seg("sc", 1),  # cos a
+            seg("lw1"),
+            seg("ho", 1),
+            seg("sc", 0, 3),  # [sin a, cos a, lw1]
+            seg("lyc", 0, 3),
+            seg("lk", 0, 3),
+            take,
+            idx3,
+            t3,
+            t3[0 : 6 * S],
+            t3[6 * S : 12 * S],
+            seg("la", 0, 6),
+            seg("la", 3, 3),
+            seg("la", 0, 3),
+            M[o["C"] : o["C"] + 3 * S],
+            seg("lp", 0, 3),
+        )
+        self._swv = (seg("d2"), seg("p1"), seg("sw"), seg("mask"))
+        self._lp_fresh = self._sw_fresh = False
+
+        # ---- results: views of the buffer (N = 1) or gathered copies (N > 1) -----------
+        if N == 1:
+
+            def view(flat: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+                out = flat.reshape(shape)
+                assert np.shares_memory(out, M)  # a view, never a copy
+                return out
+
+            self.length = view(plane("outc", 0, 1, start=3), (1, m))
+            self.free_length = view(plane("w_lf", 0), (1, m))
+            self.wrap_angle = view(plane("bl", 1), (1, m))
+            self.unit = view(plane("outc", 0, 3), (1, m, 3))
+            self.anchor_world = view(seg("aw", 0, 3), (1, m, 3))
+            self.rotation = view(M[o["r9"] : o["r9"] + 9], (1, 3, 3))
+            self.wrench = view(M[o["wr"] : o["wr"] + 6], (1, 6))
+            self.AT = t2[0 : 6 * S].reshape(1, 6, m)
+            self._leave_point = seg("lp", 0, 3).reshape(1, m, 3)
+            self._swivel_angle = seg("sw").reshape(1, m)
+            self._tail = self._sm_tail = self._lp_tail = self._sw_tail = _noop
+        else:
+            nm = lambda idx: np.moveaxis(idx, -1, 0).ravel()  # noqa: E731  (..., N) -> (N, ...)
+            parts = [
+                nm(L.prow("outc", 0) + 6 * S),  # length: real parts after the 3S u_j
+                nm(L.prow("w_lf", 0)),
+                nm(L.prow("bl", 1)),
+                nm(u_idx),
+                nm(aw_idx),
+                (o["r9"] + np.arange(9 * N).reshape(9, N)).T.ravel(),
+                (o["wr"] + np.arange(6 * N).reshape(6, N)).T.ravel(),
+            ]
+            exp = self._exp = np.zeros(sum(p.size for p in parts))
+            cuts = np.cumsum([0] + [p.size for p in parts])
+            self.length, self.free_length, self.wrap_angle = (
+                exp[cuts[k] : cuts[k + 1]].reshape(N, m) for k in range(3)
+            )
+            self.unit, self.anchor_world = (
+                exp[cuts[k] : cuts[k + 1]].reshape(N, m, 3) for k in (3, 4)
+            )
+            self.rotation = exp[cuts[5] : cuts[6]].reshape(N, 3, 3)
+            self.wrench = exp[cuts[6] : cuts[7]].reshape(N, 6)
+            self.AT = np.zeros((N, 6, m))
+            self._leave_point = np.zeros((N, m, 3))
+            self._swivel_angle = np.zeros((N, m))
+            jin = np.arange(6 * S).reshape(6, m, N)  # (j, i, n) in t2
+            lp_idx = L.vec("lp")
+            self._tail = partial(take, np.concatenate(parts), None, exp, "wrap")
+            self._sm_tail = partial(t2.take, nm(jin), None, self.AT.reshape(-1), "wrap")
+            self._lp_tail = partial(take, nm(lp_idx), None, self._leave_point.reshape(-1), "wrap")
+            self._sw_tail = partial(take, nm(L.row("sw")), None, self._swivel_angle.reshape(-1), "wrap")
+
         self.state = IKState(
             length=self.length,
             free_length=self.free_length,
             unit=self.unit,
             wrap_angle=self.wrap_angle,
             anchor_world=self.anchor_world,
-            leave_point=self.leave_point,
-            swivel_angle=self.swivel_angle,
+            leave_point=self._leave_point,
+            swivel_angle=self._swivel_angle,
             rotation=self.rotation,
         )
-        # structure matrix / wrench buffers
-        self.AT = np.zeros((N, 6, m))
-        self._AT_work = np.zeros((N, m))
-        self.wrench = np.zeros((N, 6))
-        self._w_work = np.zeros((N, 3))
-        self._wrench_moment = self.wrench[:, 3:6]
-        mg = np.asarray(geom.gravity, dtype=f8) * float(geom.mass)
-        self.wrench[:, 0:3] = mg  # constant force part
-        self._S = _moment_matrix(mg)
-        self._cog = np.array(geom.center_of_gravity, dtype=f8)
+        self.state._owner = self
 
+    # -- pose input --------------------------------------------------------------------
+    def _shape_error(self, position, orientation) -> ValueError:
+        N = self.batch
+        return ValueError(
+            f"expected position ({N}, 3) and orientation ({N}, 4), got "
+            f"{np.shape(position)} and {np.shape(orientation)}"
+        )
+
+    def _load_single(self, position, orientation) -> None:
+        """N = 1: the 10 quaternion products / |q|^2 and the position, as Python floats,
+        into v (zero quaternion: NaN, like the homogeneous rotation formula)."""
+        try:
+            (px, py, pz), = position.tolist()
+            (x, y, z, w), = orientation.tolist()
+        except (AttributeError, TypeError, ValueError):
+            if np.shape(position) != (1, 3) or np.shape(orientation) != (1, 4):
+                raise self._shape_error(position, orientation) from None
+            (px, py, pz), = np.asarray(position, dtype=np.float64).tolist()
+            (x, y, z, w), = np.asarray(orientation, dtype=np.float64).tolist()
+        xx = x * x
+        yy = y * y
+        zz = z * z
+        ww = w * w
+        s = 1.0 / ((xx + yy + zz + ww) or _NAN)
+        self._pack(
+            self._v, 0,
+            xx * s, yy * s, zz * s, ww * s,
+            x * y * s, x * z * s, y * z * s, x * w * s, y * w * s, z * w * s,
+            px, py, pz,
+        )  # fmt: skip
+
+    def _load_batch(self, position, orientation) -> None:
+        """N > 1: the same vector v per pose, vectorised (columns of V)."""
+        N = self.batch
+        if np.shape(position) != (N, 3) or np.shape(orientation) != (N, 4):
+            raise self._shape_error(position, orientation)
+        pos = np.ascontiguousarray(position, dtype=np.float64)
+        ori = np.ascontiguousarray(orientation, dtype=np.float64)
+        ori.take(self._qab_idx, None, self._qab, "wrap")
+        np.multiply(self._qa, self._qb, self._mono)
+        np.dot(self._ones4, self._mono4, self._n2)  # |q|^2
+        self._n2.take(self._n2_idx, None, self._n2rep, "wrap")
+        np.divide(self._mono, self._n2rep, self._mono)
+        pos.take(self._p_idx, None, self._vp, "wrap")
+
+    # -- the per-call path -------------------------------------------------------------
     def __call__(self, position: np.ndarray, orientation: np.ndarray) -> IKState:
         """Cable lengths etc. for N poses: ``position`` (N,3) [m], ``orientation`` (N,4)
         [qx,qy,qz,qw] (any non-zero norm; normalised). Implements eq 1 of 002 with the pulley
         model of this module. Returns :attr:`state`, whose arrays are overwritten next call.
         """
-        N = self.batch
-        if np.shape(position) != (N, 3) or np.shape(orientation) != (N, 4):
-            raise ValueError(
-                f"expected position ({N}, 3) and orientation ({N}, 4), got "
-                f"{np.shape(position)} and {np.shape(orientation)}"
-            )
-        q, QQ, R9, n2 = self._q, self._QQ, self._R9, self._n2
-        d, xp, t3 = self._d, self._xp, self._t3
-        de, ns, vx, t1, t2 = self._de, self._ns, self._vx, self._t1, self._t2
-        alpha, ca, sa = self._alpha, self._ca, self._sa
-        C, e, r = self._C, self._e, self._r
-
-        # rotation matrix R = (q q^T mapped) / |q|^2
-        np.copyto(q, orientation)
-        np.multiply(self._q_col, self._q_row, out=QQ)
-        np.matmul(self._QQ16, self._T, out=R9)
-        np.einsum("bk,bk->b", q, q, out=n2)
-        np.divide(R9, self._n2_col, out=R9)
-
-        # anchor_world = R b ; d = r + R b - C
-        np.copyto(self._pos, position)
-        np.einsum("bij,mj->bmi", self.rotation, self._b, out=self.anchor_world)
-        np.add(self.anchor_world, self._pos_v, out=d)
-        np.subtract(d, C, out=d)
-
-        # x' = (d_perp + eps ref) / |.|
-        np.einsum("bmk,mk->bm", d, e, out=de)
-        np.multiply(self._de_v, e, out=t3)
-        np.subtract(d, t3, out=xp)
-        np.add(xp, self._eps_ref, out=xp)
-        np.einsum("bmk,bmk->bm", xp, xp, out=ns)
-        np.add(ns, 1e-300, out=ns)
-        np.sqrt(ns, out=ns)
-        np.divide(xp, self._ns_v, out=xp)
-
-        # vx = d.x' - r ; vz = d.e ; lf = sqrt(vx^2 + vz^2 - r^2)
-        np.einsum("bmk,bmk->bm", d, xp, out=vx)
-        np.subtract(vx, r, out=vx)
-        lf = self.free_length
-        np.multiply(vx, vx, out=lf)
-        np.multiply(de, de, out=t1)
-        np.add(lf, t1, out=lf)
-        np.subtract(lf, self._r2, out=lf)
-        np.maximum(lf, 0.0, out=lf)
-        np.sqrt(lf, out=lf)
-
-        # alpha = atan2(vx, vz) + atan2(r, lf)
-        np.arctan2(vx, de, out=alpha)
-        np.arctan2(r, lf, out=t1)
-        np.add(alpha, t1, out=alpha)
-        np.cos(alpha, out=ca)
-        np.sin(alpha, out=sa)
-        wa = self.wrap_angle
-        np.add(alpha, _FOLD_TOL, out=wa)
-        np.mod(wa, _TWO_PI, out=wa)
-        np.subtract(wa, _FOLD_TOL, out=wa)
-        np.maximum(wa, 0.0, out=wa)
-        np.multiply(wa, self._mask, out=wa)
-
-        # length = lf + r alpha
-        np.multiply(wa, r, out=self.length)
-        np.add(self.length, lf, out=self.length)
-
-        # leave point P = C + r (1 - cos a) x' + r sin a e
-        lp = self.leave_point
-        np.subtract(1.0, ca, out=t1)
-        np.multiply(t1, r, out=t1)
-        np.multiply(self._t1_v, xp, out=lp)
-        np.multiply(sa, r, out=t1)
-        np.multiply(self._t1_v, e, out=t3)
-        np.add(lp, t3, out=lp)
-        np.add(lp, C, out=lp)
-
-        # u = -(sin a x' + cos a e)
-        u = self.unit
-        np.multiply(self._sa_v, xp, out=u)
-        np.multiply(self._ca_v, e, out=t3)
-        np.add(u, t3, out=u)
-        np.negative(u, out=u)
-
-        # swivel angle of x' about e from ref
-        np.einsum("bmk,mk->bm", xp, self._s2, out=t1)
-        np.einsum("bmk,mk->bm", xp, self._ref, out=t2)
-        np.arctan2(t1, t2, out=self.swivel_angle)
-        np.multiply(self.swivel_angle, self._mask, out=self.swivel_angle)
+        self._load(position, orientation)
+        (
+            k1a, k1b, d1o, awp, C, dvec, k2a, k2b, d2o, d2fix, hx, hy, ho, dp, r, vx,
+            wc3, sqc, sq_vx, sq_de, lf2, lf2c, lfc, num, den, o3, o3a, o3b, a2, sc,
+            alpha, t, tol, s_alpha, xabs, sp, per, take, idx1, tk1, wa, acpx, bcpx, outc,
+        ) = self._w  # fmt: skip
+        add, subtract, multiply = _add, _subtract, _multiply
+        _dot(k1a, k1b, d1o)  # [R b + r, R b, R, wrench]
+        subtract(awp, C, dvec)  # d = (r + R b) - C
+        _dot(k2a, k2b, d2o)  # local coordinates of d (and constants)
+        d2fix()
+        _hypot(hx, hy, ho)  # [|d_perp|, |x|]
+        subtract(dp, r, vx)  # vx = |d_perp| - r
+        multiply(wc3, wc3, sqc)  # [vx^2 - r^2, 0, de^2] (real parts)
+        add(sq_vx, sq_de, lf2)
+        _sqrt(lf2c, lfc)  # free length sqrt(max(lf^2, 0)) (real part)
+        _arctan2(num, den, o3)  # [delta, atan2(vx, de), delta + pi/2]
+        add(o3a, o3b, a2)  # [alpha, alpha + pi/2]
+        _sin(a2, sc)  # [sin a, cos a]
+        add(alpha, tol, t)
+        _divide(s_alpha, xabs, sp)
+        _mod(t, per, t)
+        take(idx1, None, tk1, "wrap")  # [cos a + i sin a / |x| (x3), lf - i r]
+        _maximum(t, tol, out=t)
+        subtract(t, tol, wa)  # wrap angle: max(mod(alpha + tol, 2 pi) - tol, 0)
+        multiply(acpx, bcpx, outc)  # real parts: [u, lf + r wa]
+        self._lp_fresh = self._sw_fresh = False
+        self._tail()
         return self.state
 
     def structure_matrix(self) -> np.ndarray:
         """A^T (N,6,m) of eq 2 of 002 for the last call, into the preallocated :attr:`AT`:
         rows 0-2 u_i (unitless), rows 3-5 (R b_i) x u_i [m]. Allocation-free."""
-        return structure_matrix(self.unit, self.anchor_world, out=self.AT, work=self._AT_work)
+        take, idx2, t2, awr, ur, ps, ps_a, ps_b, mom = self._sm
+        take(idx2, None, t2, "wrap")  # [u, u_{j+2}, u_{j+1}, aw_{j+1}, aw_{j+2}], j-major
+        _multiply(awr, ur, ps)
+        _subtract(ps_a, ps_b, mom)  # aw_{j+1} u_{j+2} - aw_{j+2} u_{j+1}
+        self._sm_tail()
+        return self.AT
 
     def platform_wrench(self) -> np.ndarray:
         """Gravity wrench w (N,6) [N, N m] of the platform at the last call's orientation,
-        into the preallocated :attr:`wrench` (see :func:`platform_wrench`). Allocation-free."""
-        np.einsum("bij,j->bi", self.rotation, self._cog, out=self._w_work)  # R c
-        np.einsum("ij,bj->bi", self._S, self._w_work, out=self._wrench_moment)
+        in the preallocated :attr:`wrench` (see :func:`platform_wrench`; computed by the
+        call itself). Allocation-free."""
         return self.wrench
+
+    # -- lazily filled results ----------------------------------------------------------
+    @property
+    def leave_point(self) -> np.ndarray:
+        """(N,m,3) [m] leave points of the last call (see :class:`IKState`)."""
+        self._fill_leave_point()
+        return self._leave_point
+
+    @property
+    def swivel_angle(self) -> np.ndarray:
+        """(N,m) [rad] swivel angles of the last call (see :class:`IKState`)."""
+        self._fill_swivel_angle()
+        return self._swivel_angle
+
+    def _fill_leave_point(self) -> None:
+        """P = C + r sin(a) e + r (1 - cos a) x', once per call. Allocation-free."""
+        if self._lp_fresh:
+            return
+        (ones, ca, lw1, xabs, sclw, lyc, lk, take, idx3, t3, k12, ex, la, la_x, la_e, C, lp) = (
+            self._lazy
+        )
+        _subtract(ones, ca, lw1)
+        _divide(lw1, xabs, lw1)
+        _multiply(sclw, lyc, lk)  # [r sin a, 0, r (1 - cos a) / |x|]
+        take(idx3, None, t3, "wrap")
+        _multiply(k12, ex, la)  # [-r sin a e, r (1 - cos a) x']
+        _subtract(la_x, la_e, lp)
+        _add(lp, C, lp)
+        self._lp_tail()
+        self._lp_fresh = True
+
+    def _fill_swivel_angle(self) -> None:
+        """Angle of x' about e from ref (0 without pulley), once per call."""
+        if self._sw_fresh:
+            return
+        d2, p1, sw, mask = self._swv
+        _arctan2(d2, p1, sw)
+        _multiply(sw, mask, sw)
+        self._sw_tail()
+        self._sw_fresh = True
+
+
+_dot = np.dot
+_add = np.add
+_subtract = np.subtract
+_multiply = np.multiply
+_divide = np.divide
+_hypot = np.hypot
+_maximum = np.maximum
+_sqrt = np.sqrt
+_arctan2 = np.arctan2
+_sin = np.sin
+_mod = np.mod
 
 
 def _moment_matrix(mg: np.ndarray) -> np.ndarray:
