@@ -370,6 +370,7 @@ class InverseKinematics:
         M[L.row("mask")] = per_slot(mask)
         M[L.row("ones")] = 1.0
         M[L.prow("bl", 0)] = 1.0
+        M[o["wr"] : o["wr"] + 3 * N] = np.repeat(mg, N)  # (also before the first call)
         M[L.row("lyc", 0)] = per_slot(r)
         M[L.row("lyc", 2)] = per_slot(r)
 
@@ -439,8 +440,7 @@ class InverseKinematics:
             self._pack = struct.Struct(f"{K1.shape[1] - 1}d").pack_into
             self._load = self._load_single
             d1 = (self._v, np.ascontiguousarray(K1.T), d1o)
-            d2 = (dext, np.ascontiguousarray(K2.T), d2o)
-            self._d2_fix = _noop
+            d2 = (_dot, dext, np.ascontiguousarray(K2.T), d2o)
         else:
             V = self._V = np.zeros((K1.shape[1], N))
             V[-1] = 1.0
@@ -465,10 +465,14 @@ class InverseKinematics:
             d1 = (K1, V, d1o.reshape(-1, N))
             # the product gives (row of K2, pose) order; gather it into the buffer order
             scratch = np.zeros(K2.shape[0] * N)
-            d2 = (K2, dext.reshape(n_d, N), scratch.reshape(-1, N))
             fix = np.empty(d2_stop - d2_start, dtype=np.intp)
             fix[(dest - d2_start).ravel()] = np.arange(K2.shape[0] * N)
-            self._d2_fix = partial(scratch.take, fix, None, d2o, "wrap")
+
+            def product_then_gather(a, b, out, _s=scratch.reshape(-1, N), _fix=fix):
+                _dot(a, b, _s)
+                scratch.take(_fix, None, out, "wrap")
+
+            d2 = (product_then_gather, K2, dext.reshape(n_d, N), d2o)
 
         # ---- gathers -------------------------------------------------------------------
         # complex (cos a + i sin a / |x|) per (i, j, n), then (lf - i r) per slot
@@ -488,7 +492,8 @@ class InverseKinematics:
             return np.roll(idx, -shift, axis=1).transpose(1, 0, 2).ravel()
 
         idx2 = np.concatenate(
-            [jmajor(u_idx, 0), jmajor(u_idx, 2), jmajor(u_idx, 1), jmajor(aw_idx, 1), jmajor(aw_idx, 2)]
+            [jmajor(u_idx, 0), jmajor(u_idx, 2), jmajor(u_idx, 1)]
+            + [jmajor(aw_idx, 1), jmajor(aw_idx, 2)]
         )
         self._tk2 = np.zeros(15 * S)
         # (lazy) leave point: [r sin a x3, r (1 - cos a)/|x| x3, -e, x]
@@ -511,7 +516,6 @@ class InverseKinematics:
             M[o["C"] : o["C"] + 3 * S],
             M[o["d"] : o["d"] + 3 * S],
             *d2,
-            self._d2_fix,
             seg("d1", 0, 2),  # [d1, p1]
             seg("d2", 0, 2),  # [d2, d2g]
             seg("ho", 0, 2),
@@ -578,7 +582,7 @@ class InverseKinematics:
             seg("lp", 0, 3),
         )
         self._swv = (seg("d2"), seg("p1"), seg("sw"), seg("mask"))
-        self._lp_fresh = self._sw_fresh = False
+        self._lp_fresh = self._sw_fresh = True  # (zeros until the first call)
 
         # ---- results: views of the buffer (N = 1) or gathered copies (N > 1) -----------
         if N == 1:
@@ -620,6 +624,7 @@ class InverseKinematics:
             )
             self.rotation = exp[cuts[5] : cuts[6]].reshape(N, 3, 3)
             self.wrench = exp[cuts[6] : cuts[7]].reshape(N, 6)
+            self.wrench[:, 0:3] = mg
             self.AT = np.zeros((N, 6, m))
             self._leave_point = np.zeros((N, m, 3))
             self._swivel_angle = np.zeros((N, m))
@@ -628,7 +633,8 @@ class InverseKinematics:
             self._tail = partial(take, np.concatenate(parts), None, exp, "wrap")
             self._sm_tail = partial(t2.take, nm(jin), None, self.AT.reshape(-1), "wrap")
             self._lp_tail = partial(take, nm(lp_idx), None, self._leave_point.reshape(-1), "wrap")
-            self._sw_tail = partial(take, nm(L.row("sw")), None, self._swivel_angle.reshape(-1), "wrap")
+            sw_idx = nm(L.row("sw"))
+            self._sw_tail = partial(take, sw_idx, None, self._swivel_angle.reshape(-1), "wrap")
 
         self.state = IKState(
             length=self.length,
@@ -695,15 +701,14 @@ class InverseKinematics:
         """
         self._load(position, orientation)
         (
-            k1a, k1b, d1o, awp, C, dvec, k2a, k2b, d2o, d2fix, hx, hy, ho, dp, r, vx,
+            k1a, k1b, d1o, awp, C, dvec, dot2, k2a, k2b, d2o, hx, hy, ho, dp, r, vx,
             wc3, sqc, sq_vx, sq_de, lf2, lf2c, lfc, num, den, o3, o3a, o3b, a2, sc,
             alpha, t, tol, s_alpha, xabs, sp, per, take, idx1, tk1, wa, acpx, bcpx, outc,
         ) = self._w  # fmt: skip
         add, subtract, multiply = _add, _subtract, _multiply
         _dot(k1a, k1b, d1o)  # [R b + r, R b, R, wrench]
         subtract(awp, C, dvec)  # d = (r + R b) - C
-        _dot(k2a, k2b, d2o)  # local coordinates of d (and constants)
-        d2fix()
+        dot2(k2a, k2b, d2o)  # local coordinates of d (and constants)
         _hypot(hx, hy, ho)  # [|d_perp|, |x|]
         subtract(dp, r, vx)  # vx = |d_perp| - r
         multiply(wc3, wc3, sqc)  # [vx^2 - r^2, 0, de^2] (real parts)
