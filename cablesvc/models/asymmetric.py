@@ -2,21 +2,16 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from cablesvc.models.base import CableModel, ModelParameterError, ModelState
-from cablesvc.models.boucwen import BoucWenIntegrator
+from cablesvc.models.boucwen import BoucWenFamily, BoucWenState
 
 
-@dataclass
-class AsymmetricState(ModelState):
-    x_prev: np.ndarray
-    z: np.ndarray
+#: the state is the Bouc-Wen family's (last elongation and z)
+AsymmetricState = BoucWenState
 
 
-class AsymmetricBoucWen(CableModel):
+class AsymmetricBoucWen(BoucWenFamily):
     """Modified asymmetric Bouc-Wen model with parameters (b, c, alpha, beta, gamma, n, k1, k2, k3).
 
     The report 001 (Ch 4, eqs 4.1-4.3, after Ni, Ko & Wong) describes the model as a
@@ -61,31 +56,14 @@ class AsymmetricBoucWen(CableModel):
         "x_center": "elongation where xi = 0 [m]",
     }
 
-    @classmethod
-    def extra_options(cls):
-        return ("integrator", "substeps")
+    hysteretic_stiffness = "alpha"
 
     def check_params(self):
-        if np.any(self.params["n"] <= 0):
-            raise ModelParameterError("asymmetric: n must be > 0")
-        p = self.params
-        self.integrator = BoucWenIntegrator(
-            self.shape, p["alpha"], p["beta"], p["gamma"], p["n"],
-            self._options.get("integrator", "semi-implicit"), self._options.get("substeps", 1))
-        self._dx = np.empty(self.shape)
-        self._xi = np.empty(self.shape)
-        self._t = np.empty(self.shape)
+        super().check_params()
         self._s = np.empty(self.shape)
 
-    def create_state(self, x0=0.0, z0=0.0) -> AsymmetricState:
-        return AsymmetricState(x_prev=self._x0(x0), z=np.broadcast_to(np.asarray(z0, float), self.shape).copy())
-
-    def step(self, state: AsymmetricState, x, dt, l0=None):
-        p = self.params
-        np.subtract(x, state.x_prev, self._dx)
-        self.integrator.advance(state.z, self._dx)
-        xi, t, s = self._xi, self._t, self._s
-        np.subtract(x, p["x_center"], xi)
+    def _force(self, z):
+        p, xi, t, s = self.params, self._xi, self._t, self._s
         # F1 = xi (k1 + xi (k2 + xi k3))
         np.multiply(xi, p["k3"], t)
         np.add(t, p["k2"], t)
@@ -96,7 +74,5 @@ class AsymmetricBoucWen(CableModel):
         np.multiply(xi, xi, s)
         np.multiply(s, p["c"], s)
         np.add(s, p["b"], s)
-        np.multiply(s, state.z, s)
+        np.multiply(s, z, s)
         np.add(t, s, self.force)
-        np.copyto(state.x_prev, x)
-        return self.force

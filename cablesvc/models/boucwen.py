@@ -124,7 +124,45 @@ class BoucWenState(ModelState):
     z: np.ndarray
 
 
-class BoucWen(CableModel):
+class BoucWenFamily(CableModel):
+    """Shared machinery of models whose memory is one Bouc-Wen variable z (eq 1 of 000):
+    build options, the integrator, the state and the z update. A subclass names the
+    parameter playing k_d in ``hysteretic_stiffness`` and writes ``self.force`` from x
+    and z in ``_force``."""
+
+    hysteretic_stiffness = "k_d"
+
+    @classmethod
+    def extra_options(cls):
+        return ("integrator", "substeps")
+
+    def check_params(self):
+        if np.any(self.params["n"] <= 0):
+            raise ModelParameterError(f"{self.name}: n must be > 0")
+        p = self.params
+        self.integrator = BoucWenIntegrator(
+            self.shape, p[self.hysteretic_stiffness], p["beta"], p["gamma"], p["n"],
+            self._options.get("integrator", "semi-implicit"), self._options.get("substeps", 1))
+        self._dx = np.empty(self.shape)
+        self._xi = np.empty(self.shape)
+        self._t = np.empty(self.shape)
+
+    def create_state(self, x0=0.0, z0=0.0) -> BoucWenState:
+        return BoucWenState(x_prev=self._x0(x0), z=np.broadcast_to(np.asarray(z0, float), self.shape).copy())
+
+    def step(self, state: BoucWenState, x, dt, l0=None):
+        np.subtract(x, state.x_prev, self._dx)
+        self.integrator.advance(state.z, self._dx)
+        np.subtract(x, self.params["x_center"], self._xi)
+        self._force(state.z)
+        np.copyto(state.x_prev, x)
+        return self.force
+
+    def _force(self, z: np.ndarray) -> None:
+        raise NotImplementedError
+
+
+class BoucWen(BoucWenFamily):
     """Bouc-Wen model enhanced with a cubic term, eqs 1-2 of 000:
 
     ``f = f0 + k_e xi + k3 xi^3 + z``,  ``z' = [k_d - (gamma + beta sgn(z xi')) |z|^n] xi'``
@@ -149,40 +187,19 @@ class BoucWen(CableModel):
         "x_center": "elongation where xi = 0 [m]",
     }
 
-    @classmethod
-    def extra_options(cls):
-        return ("integrator", "substeps")
-
     def check_params(self):
-        if np.any(self.params["n"] <= 0):
-            raise ModelParameterError("boucwen: n must be > 0")
         if np.any(self.params["k_d"] < 0):
             raise ModelParameterError("boucwen: k_d must be >= 0")
-        p = self.params
-        self.integrator = BoucWenIntegrator(
-            self.shape, p["k_d"], p["beta"], p["gamma"], p["n"],
-            self._options.get("integrator", "semi-implicit"), self._options.get("substeps", 1))
-        self._dx = np.empty(self.shape)
-        self._xi = np.empty(self.shape)
-        self._t = np.empty(self.shape)
+        super().check_params()
 
-    def create_state(self, x0=0.0, z0=0.0) -> BoucWenState:
-        return BoucWenState(x_prev=self._x0(x0), z=np.broadcast_to(np.asarray(z0, float), self.shape).copy())
-
-    def step(self, state: BoucWenState, x, dt, l0=None):
-        p = self.params
-        np.subtract(x, state.x_prev, self._dx)
-        self.integrator.advance(state.z, self._dx)
-        xi, t = self._xi, self._t
-        np.subtract(x, p["x_center"], xi)
+    def _force(self, z):
+        p, xi, t = self.params, self._xi, self._t
         np.multiply(xi, xi, t)
         np.multiply(t, p["k3"], t)
         np.add(t, p["k_e"], t)
         np.multiply(t, xi, t)
         np.add(t, p["f0"], t)
-        np.add(t, state.z, self.force)
-        np.copyto(state.x_prev, x)
-        return self.force
+        np.add(t, z, self.force)
 
 
 # ---- conventions -------------------------------------------------------------------
