@@ -1,0 +1,326 @@
+"""``cablesvc bench cable-experiment``: the experiment of paper 002 Sec 4, simulated, and the
+amplitude model of 002 Sec 3 identified from it.
+
+Set-up (what 002 Sec 4 describes): the platform is held fixed at the home pose, every
+winch stretches its cable around a 60 N pretension with x = x_pre - A cos(w t) (eq 15), at
+amplitude levels from 0.1 mm to 1.5 mm, 3 periods each at 0.5 Hz, 1 kHz sampling, force
+sensors with 0.1 N Gaussian noise (``hold-sine`` scenario of the twin).
+
+Truth (defined here, per cable i with k_i = EA_i / L_i at home and a = A / 1.5 mm)::
+
+    K0 = 60 N                       x_center = 60 N / k_i  (the pretension working point)
+    K1(A) = k_i (1 - 0.2 a)         [N/m]   secant stiffness softening with amplitude
+    K2 = 0.05 k_i / 1.5 mm          [N/m^2] (1.1 N at xi = 1.5 mm for k = 15 kN/m)
+    K3 = 0.05 k_i / (1.5 mm)^2      [N/m^3] (1.1 N at xi = 1.5 mm)
+    S_a(A) = pi (0.08 + 0.04 a) K1(A) A^2   [J]  (loss factor 0.08..0.12)
+    alpha(A) = 0.2 + 0.2 a          [-]
+
+tabulated on 57 amplitudes from 0.1 to 1.5 mm (the kernel model interpolates them).
+Because K0 = 60 N at xi = 0, the pretension elongation is x_center at every level.
+
+Identification (:func:`cablesvc.identify.amplitude_fit.fit_amplitude_model`) sees only
+the recording (pose, motor lengths, forces), never the truth. Levels 0.1, 0.25, 0.5, 1.0,
+1.5 mm are fitted; the 0.75 mm level is held out and predicted by the identified
+amplitude model (run as the kernel runs it, over the whole recording).
+
+Scores:
+
+* parameter recovery: the identified model's parameters in effect at each amplitude level
+  (its table, read the way the kernel reads it) against the truth's, relative error, target
+  2 %, over all levels and parameters and, separately, over the (level, parameter) pairs
+  the data determine (per-level relative standard error <= 1 %: where it is larger, e.g.
+  K3 at 0.1 mm whose force contribution K3 A^3 is far below the 0.1 N noise, no fit can
+  promise 2 %); per-level raw fits are reported with their standard errors too;
+* held-out force RMSE on the 0.75 mm level against the measured force, target
+  <= 1.1 x 0.1 N (10 % above the sensor noise);
+* the sensitivities of Table 1 of 002 (eq 11) for the truth model at each level.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from typing import Any, Sequence
+
+import numpy as np
+
+from cablesvc.config import load_robot
+from cablesvc.config.params import ModelParams
+from cablesvc.identify.amplitude_fit import PER_LEVEL, fit_amplitude_model
+from cablesvc.identify.cable import amplitude_params, cable_data
+from cablesvc.identify.identifiability import sensitivity
+from cablesvc.kinematics import inverse_kinematics
+from cablesvc.models import AmplitudeDependent
+from cablesvc.models.amplitude import GRID_POINTS
+
+__all__ = ["experiment_truth", "run_cable_experiment", "effective_values", "table1_sensitivity", "add_parser"]
+
+A_MAX = 1.5e-3
+FIT_LEVELS = (1e-4, 2.5e-4, 5e-4, 1e-3, 1.5e-3)
+HELD_OUT = 7.5e-4
+NOISE = 0.1
+TARGET_REL = 0.02
+TARGET_RMSE = 1.1 * NOISE
+#: a parameter counts as determined by one level's data when its standard error is at most this fraction of it
+DETERMINED_RSE = 0.01
+
+
+def experiment_truth(robot: str = "ipanema3", points: int = 57) -> ModelParams:
+    """The truth amplitude model of the experiment (see module docstring)."""
+    rob = load_robot(robot)
+    geom = rob.geometry()
+    L = inverse_kinematics(geom, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])).length[0]
+    k = np.asarray(geom.ea, float) / L
+    A = np.linspace(1e-4, A_MAX, points)
+    a = A / A_MAX
+    K1 = k[:, None] * (1.0 - 0.2 * a)[None, :]
+    tables = {
+        "amplitudes": A.tolist(),
+        "K0": [60.0] * points,
+        "K1": K1.tolist(),
+        "K2": np.repeat((0.05 * k / A_MAX)[:, None], points, axis=1).tolist(),
+        "K3": np.repeat((0.05 * k / A_MAX ** 2)[:, None], points, axis=1).tolist(),
+        "S_a": (np.pi * (0.08 + 0.04 * a)[None, :] * K1 * A[None, :] ** 2).tolist(),
+        "alpha": (0.2 + 0.2 * a).tolist(),
+    }
+    return ModelParams(model="amplitude", params={"x_center": (60.0 / k).tolist(), "amplitude_init": 5e-4},
+                       tables=tables, robot=rob.name, source="cable-experiment truth")
+
+
+def effective_values(params: ModelParams, n_cables: int, A: float) -> dict[str, np.ndarray]:
+    """Table values (per cable, (m,)) the kernel's amplitude model applies at amplitude
+    ``A`` [m]: the tables are resampled on GRID_POINTS uniform amplitudes and read at the
+    nearest point, clamped to the table range (see :class:`AmplitudeDependent`)."""
+    grid = np.asarray(params.tables["amplitudes"], float)
+    lo, hi = grid[0], grid[-1]
+    if grid.size > 1:
+        G = GRID_POINTS
+        u = min(max(A, lo) * (G - 1) / (hi - lo) - (lo * (G - 1) / (hi - lo) - 0.5), (G - 1) + 0.25)
+        idx = int(np.floor(u))
+        Aeff = lo + idx * (hi - lo) / (G - 1)
+    else:
+        Aeff = lo
+    out = {}
+    for k in PER_LEVEL:
+        tab = np.broadcast_to(np.asarray(params.tables[k], float), (n_cables, grid.size))
+        out[k] = np.array([np.interp(Aeff, grid, tab[c]) for c in range(n_cables)])
+    return out
+
+
+def table1_sensitivity(params: ModelParams, n_cables: int, A: float, *, cable: int = 0, frequency: float = 0.5,
+                       samples: int = 400, rel_step: float = 0.1) -> dict[str, float]:
+    """Sensitivities of eq 11 of 002 (Table 1: K1, K2, K3, S_a; alpha added) of the
+    amplitude model at amplitude ``A`` [m] for one cable.
+
+    Output O: the RMS over one steady period of x = x_center - A cos(w t) of the force
+    variation F - K0 [N] (the model's response to the excitation, without the constant
+    pretension that no parameter of p_M acts on). Input I: one parameter, perturbed by
+    +-``rel_step`` around its value; the perturbed sets are the lanes of one model run."""
+    vals = effective_values(params, n_cables, A)
+    p = np.array([vals[k][cable] for k in ("K1", "K2", "K3", "S_a", "alpha")])
+    xc = float(np.broadcast_to(np.asarray(params.params["x_center"], float), (n_cables,))[cable])
+    K0 = float(vals["K0"][cable])
+    w = 2 * np.pi * frequency
+    t = np.arange(3 * samples + 1) / (samples * frequency)
+    x = xc - A * np.cos(w * t)
+
+    def output(P):
+        L = P.shape[0]
+        model = AmplitudeDependent((L, 1), amplitudes=[1e-12], K0=np.full((L, 1, 1), K0),
+                                   K1=P[:, 0, None, None], K2=P[:, 1, None, None], K3=P[:, 2, None, None],
+                                   S_a=P[:, 3, None, None], alpha=P[:, 4, None, None], x_center=xc,
+                                   amplitude_init=A, omega_init=w)
+        st = model.create_state(np.full((L, 1), x[0]))
+        st.memory[0] = x[0]
+        st.direction[...] = 1.0
+        F = np.empty((t.size, L))
+        dt = t[1] - t[0]
+        for i in range(t.size):
+            F[i] = model.step(st, np.full((L, 1), x[i]), dt if i else 0.0)[:, 0]
+        steady = F[-samples:] - K0
+        return np.sqrt(np.mean(steady ** 2, axis=0))
+
+    s = sensitivity(output, p, rel_step=rel_step, names=["K1", "K2", "K3", "S_a", "alpha"])
+    return {n: float(v) for n, v in zip(s["names"], s["S"])}
+
+
+def run_cable_experiment(robot: str = "ipanema3", *, seed: int = 0, rate: float = 1000.0, frequency: float = 0.5,
+                         cycles: int = 3, noise: float = NOISE, fit_levels: Sequence[float] = FIT_LEVELS,
+                         held_out: float = HELD_OUT, cables: Sequence[int] | None = None,
+                         progress: Any = None) -> dict[str, Any]:
+    """Simulate the experiment, identify, score. Returns a JSON-able dict (see module docstring)."""
+    from cablesvc.simulate import TruthConfig, simulate_recording
+    t0 = time.perf_counter()
+    rob = load_robot(robot)
+    m = rob.n_cables
+    truth = experiment_truth(robot)
+    levels = sorted(list(fit_levels) + [held_out])
+    rec = simulate_recording(rob, "hold-sine", truth=TruthConfig(base=truth, noise_std=noise), seed=seed, rate=rate,
+                             frequency=frequency, cycles=cycles, amplitudes=levels)
+    t_sim = time.perf_counter() - t0
+    data = cable_data(rec, rob, cables)
+    K = len(data.cables)
+    fit = fit_amplitude_model(data.t, data.x, data.force, cables=data.cables, hold_out=[held_out],
+                              progress=progress)
+    params = amplitude_params(fit, rob, data, seed)
+    t_fit = time.perf_counter() - t0 - t_sim
+
+    # parameter recovery at the fitted levels: identified model vs truth, as the kernel applies them
+    rec_rows = []
+    worst: dict[str, float] = {k: 0.0 for k in PER_LEVEL}
+    worst_raw: dict[str, float] = {k: 0.0 for k in PER_LEVEL}
+    worst_det: dict[str, float] = {k: 0.0 for k in PER_LEVEL}
+    undetermined: list[str] = []
+    for lf in fit.fits:
+        A = float(np.median(lf.amplitude))
+        tv = effective_values(truth, m, A)
+        iv = effective_values(params, m, A)
+        row: dict[str, Any] = {"amplitude_mm": A * 1e3}
+        for j, k in enumerate(PER_LEVEL):
+            tru = tv[k][data.cables]
+            ide = iv[k][data.cables]
+            raw = np.array([r.x[j] for r in lf.results])
+            se = np.array([r.stderr[j] for r in lf.results])
+            rel = np.abs(ide - tru) / np.abs(tru)
+            rel_raw = np.abs(raw - tru) / np.abs(tru)
+            worst[k] = max(worst[k], float(rel.max()))
+            worst_raw[k] = max(worst_raw[k], float(rel_raw.max()))
+            # determined by the data at this level: per-level relative standard error <= 1 %
+            det = se / np.abs(raw) <= DETERMINED_RSE
+            if np.any(det):
+                worst_det[k] = max(worst_det[k], float(rel[det].max()))
+            if not np.all(det):
+                undetermined.append(f"{k}@{A * 1e3:.3g}mm")
+            row[k] = {"truth_cable0": float(tru[0]), "model_cable0": float(ide[0]), "max_rel_err": float(rel.max()),
+                      "level_fit_cable0": float(raw[0]), "level_fit_stderr_cable0": float(se[0]),
+                      "level_fit_max_rel_err": float(rel_raw.max()),
+                      "level_fit_max_err_in_stderr": float(np.max(np.abs(raw - tru) / se))}
+        rec_rows.append(row)
+    xc_truth = np.asarray(truth.params["x_center"], float)[data.cables]
+    xc_err = float(np.max(np.abs(fit.x_center - xc_truth) / xc_truth))
+
+    # held-out level: run the identified parameters as the kernel does, over the whole recording
+    model = params.build(m, 1)
+    x_all = np.zeros((data.t.size, m))
+    l0_all = np.ones((data.t.size, m))
+    x_all[:, data.cables] = data.x
+    l0_all[:, data.cables] = data.l0
+    st = model.create_state(x_all[0][None])
+    pred = np.empty_like(x_all)
+    dts = np.diff(data.t, prepend=data.t[0])
+    for i in range(data.t.size):
+        pred[i] = model.step(st, x_all[i][None], float(dts[i]), l0_all[i][None])[0]
+    pred = pred[:, data.cables]
+    from cablesvc.identify.amplitude_fit import segment_levels
+    held_rmse = []
+    held_rmse_truthfree = []
+    for c in range(K):
+        lvs = [lv for lv in segment_levels(data.x[:, c], data.t) if abs(lv.amplitude - held_out) <= 0.05 * held_out]
+        if not lvs:
+            continue
+        lv = lvs[0]
+        a, b = int(lv.reversals[1]), int(lv.stop) + 1
+        held_rmse.append(float(np.sqrt(np.mean((pred[a:b, c] - data.force[a:b, c]) ** 2))))
+        held_rmse_truthfree.append(float(np.sqrt(np.mean((pred[lv.start:b, c] - data.force[lv.start:b, c]) ** 2))))
+    # sensitivities of Table 1 for the truth model, cable 0, every level
+    sens = {f"{A * 1e3:g} mm": table1_sensitivity(truth, m, A, cable=data.cables[0]) for A in levels}
+    t_total = time.perf_counter() - t0
+    out = {
+        "bench": "cable-experiment", "robot": rob.name, "cables": data.cables, "seed": seed, "rate_hz": rate,
+        "frequency_hz": frequency, "cycles": cycles, "noise_std_n": noise,
+        "fit_levels_mm": [a * 1e3 for a in fit_levels], "held_out_mm": held_out * 1e3,
+        "levels_found_mm": [float(np.median(lf.amplitude) * 1e3) for lf in fit.fits],
+        "recovery": rec_rows,
+        "max_rel_err": worst, "level_fit_max_rel_err": worst_raw, "x_center_max_rel_err": xc_err,
+        "max_rel_err_determined": worst_det, "undetermined": undetermined,
+        "f_A_degrees_cable0": {k: fit.functions[0][k].degree for k in PER_LEVEL},
+        "fit_rmse_n": [float(np.sqrt(np.nanmean((lf.model - lf.force) ** 2))) for lf in fit.fits],
+        "held_out_rmse_n": held_rmse, "held_out_rmse_max_n": max(held_rmse) if held_rmse else None,
+        "held_out_rmse_incl_first_half_cycle_n": held_rmse_truthfree,
+        "sensitivity_table1_truth_cable0": sens,
+        "targets": {"param_rel_err": TARGET_REL, "held_out_rmse_n": TARGET_RMSE * noise / NOISE},
+        "met": {"params_within_2pct": bool(max(worst.values()) <= TARGET_REL and xc_err <= TARGET_REL),
+                "determined_params_within_2pct": bool(max(worst_det.values()) <= TARGET_REL
+                                                      and xc_err <= TARGET_REL),
+                "held_out_rmse": bool(held_rmse and max(held_rmse) <= TARGET_RMSE * noise / NOISE)},
+        "seconds": {"simulate": t_sim, "identify": t_fit, "total": t_total},
+    }
+    return out
+
+
+def _print_human(res: dict[str, Any]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+    con = Console()
+    con.print(f"[bold]002 Sec 4 experiment[/], robot {res['robot']}, cables {res['cables']}, "
+              f"{res['rate_hz']:g} Hz, {res['frequency_hz']:g} Hz sine, {res['cycles']} cycles/level, "
+              f"noise {res['noise_std_n']} N; fitted levels {res['levels_found_mm']} mm, held out "
+              f"{res['held_out_mm']:g} mm")
+    tb = Table(title="identified amplitude model vs truth: max relative error over cables (and the raw per-level fit)")
+    tb.add_column("A [mm]", justify="right")
+    for k in PER_LEVEL:
+        tb.add_column(k, justify="right")
+    for row in res["recovery"]:
+        tb.add_row(f"{row['amplitude_mm']:.3g}", *[f"{row[k]['max_rel_err'] * 100:.3f} % "
+                                                   f"({row[k]['level_fit_max_rel_err'] * 100:.2g} %)" for k in PER_LEVEL])
+    con.print(tb)
+    con.print(f"x_center max rel. error {res['x_center_max_rel_err'] * 100:.4f} %; "
+              f"f_A degrees (cable {res['cables'][0]}): {res['f_A_degrees_cable0']}")
+    ok = res["met"]
+    con.print(f"parameters within 2 %: {'[green]yes' if ok['params_within_2pct'] else '[red]NO'}[/] "
+              f"(worst {max(res['max_rel_err'].values()) * 100:.3f} %)")
+    hr = res["held_out_rmse_max_n"]
+    wd = res["max_rel_err_determined"]
+    con.print(f"parameters the data determine (per-level relative standard error <= 1 %) within 2 %: "
+              f"{'[green]yes' if ok['determined_params_within_2pct'] else '[red]NO'}[/] "
+              f"(worst {max(wd.values()) * 100:.3f} %: " + ", ".join(f"{k} {v * 100:.2f} %" for k, v in wd.items())
+              + f"); not determined at their level: {', '.join(res['undetermined']) or 'none'}")
+    con.print(f"held-out {res['held_out_mm']:g} mm level force RMSE: max over cables {hr:.4f} N "
+              f"(target <= {res['targets']['held_out_rmse_n']:.3f} N): "
+              f"{'[green]met' if ok['held_out_rmse'] else '[red]NOT met'}[/]; per cable "
+              f"{[round(v, 4) for v in res['held_out_rmse_n']]}")
+    st = Table(title="Table 1 of 002 for the truth model (eq 11, O = RMS of F - K0 over a period, +-10 % steps)")
+    st.add_column("A")
+    names = ["K1", "K2", "K3", "S_a", "alpha"]
+    for n in names:
+        st.add_column(n, justify="right")
+    for lvl, s in res["sensitivity_table1_truth_cable0"].items():
+        st.add_row(lvl, *[f"{s[n]:.3g}" for n in names])
+    con.print(st)
+    sec = res["seconds"]
+    con.print(f"time: simulate {sec['simulate']:.1f} s, identify {sec['identify']:.1f} s, total {sec['total']:.1f} s")
+
+
+def cmd_cable_experiment(args: argparse.Namespace) -> int:
+    cables = None if not args.cables else [int(c) for c in args.cables.split(",")]
+    if args.json:
+        res = run_cable_experiment(args.robot, seed=args.seed, cables=cables, cycles=args.cycles)
+        print(json.dumps(res))
+    else:
+        from rich.progress import Progress
+        with Progress(transient=True) as prog:
+            task = prog.add_task("identify", total=1)
+
+            def cb(done, total, text):
+                prog.update(task, total=total, completed=done, description=text)
+            res = run_cable_experiment(args.robot, seed=args.seed, cables=cables, cycles=args.cycles, progress=cb)
+        _print_human(res)
+    return 0 if res["met"]["params_within_2pct"] and res["met"]["held_out_rmse"] else 1
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Register ``cable-experiment`` on the ``cablesvc bench`` sub-parsers."""
+    p = subparsers.add_parser(
+        "cable-experiment", help="002 Sec 4 experiment simulated; amplitude model identified and scored",
+        description="Simulates the hold experiment of 002 Sec 4 (platform fixed, 60 N pretension, amplitudes "
+                    "0.1-1.5 mm, 0.1 N noise) with a known amplitude model, identifies the model of 002 Sec 3 "
+                    "from the recording, and reports parameter errors, the held-out-level force RMSE and the "
+                    "Table 1 sensitivities. Exit code 1 when a target is missed.")
+    p.add_argument("--robot", default="ipanema3")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--cables", help="comma-separated cable indices (default all)")
+    p.add_argument("--cycles", type=int, default=3, help="sine periods per amplitude level (default 3)")
+    p.add_argument("--json", action="store_true", help="one JSON object")
+    p.set_defaults(func=cmd_cable_experiment)
+    return p

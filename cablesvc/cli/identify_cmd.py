@@ -1,0 +1,183 @@
+"""``cablesvc identify``: cable-model parameters from a recording.
+
+    cablesvc identify --model amplitude --robot ipanema3 hold.mcap --out params.toml --report rep/
+
+Shows a progress bar while it works, then a table of the parameters with standard errors;
+``--out`` writes a parameter file that ``cablesvc run --params`` loads; ``--report`` writes a
+Markdown report with PNG plots. Errors (unreadable recording, unknown model or method,
+cable index out of range, robot/recording mismatch) are one clear line and exit code 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any, Sequence
+
+__all__ = ["add_parser", "cmd_identify", "run_identify", "build_parser"]
+
+DESCRIPTION = """\
+Identify cable-model parameters from a recording (MCAP or CSV) with pose, motor lengths
+and measured forces. Elongation x = l(pose) - motor_length from inverse kinematics, as in
+the kernel. Methods: pso+lm = particle swarm (paper 000 Sec 5) then least squares (002
+eqs 12-14); lm = least squares only; sqp = constrained multi-start SQP (001 Ch 5). The
+amplitude model on a hold-sine recording is fitted per amplitude level (002 Sec 3)."""
+
+EPILOG = """\
+examples:
+  cablesvc simulate --robot ipanema3 --scenario hold-sine --out hold.mcap
+  cablesvc identify --model amplitude --robot ipanema3 hold.mcap --out params.toml --report report/
+  cablesvc identify --model boucwen --cables 0,1 --method pso+lm hold.mcap --out bw.toml
+  cablesvc run --params params.toml
+"""
+
+
+def _fail(msg: str) -> int:
+    print(f"cablesvc identify: {msg}", file=sys.stderr)
+    return 1
+
+
+def _parse_cables(text: str | None) -> list[int] | None:
+    if text is None or text.strip() == "":
+        return None
+    try:
+        return [int(c) for c in text.split(",") if c.strip() != ""]
+    except ValueError:
+        raise ValueError(f"--cables: expected comma-separated cable indices like 0,1,2, got {text!r}") from None
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    """Run ``cablesvc identify``; returns the exit code."""
+    from pathlib import Path
+
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from cablesvc.config import RobotFileError, load_robot
+    from cablesvc.identify.cable import METHODS, MODEL_CHOICES, IdentifyError, identify_cable
+    from cablesvc.identify.report import format_value, write_report
+    from cablesvc.recording import RecordingError, read_recording
+
+    con = Console()
+    if args.model not in MODEL_CHOICES:
+        return _fail(f"unknown model {args.model!r}; choose one of {', '.join(MODEL_CHOICES)}")
+    if args.method not in METHODS:
+        return _fail(f"unknown method {args.method!r}; choose one of {', '.join(METHODS)}")
+    try:
+        cables = _parse_cables(args.cables)
+    except ValueError as e:
+        return _fail(str(e))
+    rec_path = Path(args.recording)
+    if not rec_path.exists():
+        return _fail(f"{rec_path}: recording not found")
+    try:
+        rec = read_recording(rec_path)
+    except RecordingError as e:
+        return _fail(f"cannot read the recording: {e}")
+    except (OSError, ValueError) as e:
+        return _fail(f"cannot read the recording {rec_path}: {e}")
+    robot_name = args.robot or rec.robot
+    try:
+        robot = load_robot(robot_name)
+    except RobotFileError as e:
+        return _fail(str(e))
+    if args.robot and rec.robot and rec.robot != robot.name:
+        con.print(f"[yellow]note:[/] the recording says robot {rec.robot!r}, using {robot.name!r} as asked")
+    if args.out and Path(args.out).suffix.lower() != ".toml":
+        return _fail(f"--out {args.out}: the parameter file must end in .toml")
+    try:
+        with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                      TimeElapsedColumn(), console=con, transient=True, disable=args.quiet) as prog:
+            task = prog.add_task(f"identify {args.model}", total=1)
+
+            def cb(done: float, total: float, text: str) -> None:
+                prog.update(task, total=max(total, 1), completed=done, description=text)
+
+            fit = identify_cable(rec, robot, args.model, cables=cables, shared=args.shared, method=args.method,
+                                 seed=args.seed, progress=cb, iterations=args.iterations, particles=args.particles)
+    except IdentifyError as e:
+        return _fail(str(e))
+    except ValueError as e:
+        return _fail(str(e))
+
+    _print_table(con, fit, format_value)
+    if args.out:
+        fit.params.identification["recording"] = str(rec_path)
+        fit.params.save(args.out)
+        con.print(f"wrote {args.out} (cablesvc run --robot {robot.name} --params {args.out})")
+    if args.report:
+        path = write_report(fit, args.report, recording=str(rec_path), params_file=args.out)
+        con.print(f"wrote {path}")
+    return 0
+
+
+def _print_table(con: Any, fit: Any, format_value: Any) -> None:
+    from rich.table import Table
+    if fit.amplitude is not None:
+        from cablesvc.identify.amplitude_fit import PER_LEVEL, UNITS
+        af = fit.amplitude
+        tb = Table(title=f"amplitude model per level (002 eq 8), value +- standard error; "
+                         f"{len(af.fits)} levels, {af.table_amplitudes.size}-point table")
+        tb.add_column("cable", justify="right")
+        tb.add_column("A [mm]", justify="right")
+        for k in PER_LEVEL:
+            tb.add_column(f"{k} [{UNITS[k]}]", justify="right")
+        for j, c in enumerate(af.cables):
+            lt = af.level_table(j)
+            for i in range(len(af.fits)):
+                tb.add_row(str(c), f"{lt['A'][i] * 1e3:.3g}", *[format_value(lt[k][i], lt[k + '_se'][i])
+                                                                 for k in PER_LEVEL])
+        con.print(tb)
+    else:
+        tb = Table(title=f"{fit.model} parameters, value +- standard error ({fit.method})")
+        tb.add_column("cable", justify="right")
+        for n, u in zip(fit.names, fit.units):
+            tb.add_column(f"{n} [{u}]" if u else n, justify="right")
+        tb.add_column("cond", justify="right")
+        for j, r in enumerate(fit.results):
+            lab = str(fit.cables[j]) if not fit.shared else "shared"
+            tb.add_row(lab, *[format_value(v, s) for v, s in zip(r.x, r.stderr)], f"{r.get('cond', float('nan')):.3g}")
+        con.print(tb)
+        for j, r in enumerate(fit.results):
+            for g in r.get("redundant") or []:
+                con.print(f"[yellow]identifiability[/] ({'cable ' + str(fit.cables[j]) if not fit.shared else 'shared'}): "
+                          f"{g.describe()}")
+    con.print("force RMSE [N]: " + ", ".join(f"cable {c}: {v:.4g}" for c, v in zip(fit.cables, fit.rmse)))
+    for n in fit.notes:
+        con.print(f"[dim]{n}[/]")
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Register ``identify`` on the top-level ``cablesvc`` sub-parsers."""
+    p = subparsers.add_parser("identify", help="identify cable-model parameters from a recording",
+                              description=DESCRIPTION, epilog=EPILOG,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("recording", help="recording (.mcap or .csv) with pose, motor lengths and forces")
+    p.add_argument("--model", default="amplitude",
+                   help="linear | polynomial | amplitude | boucwen | asymmetric (default amplitude)")
+    p.add_argument("--robot", help="robot name or .toml path (default: the robot named in the recording)")
+    p.add_argument("--cables", help="comma-separated 0-based cable indices (default all)")
+    p.add_argument("--shared", action="store_true", help="one parameter set for all selected cables")
+    p.add_argument("--method", default="pso+lm", help="pso+lm (default) | lm | sqp")
+    p.add_argument("--out", help="write the parameter file (.toml) for cablesvc run --params")
+    p.add_argument("--report", metavar="DIR", help="write report.md with PNG plots into DIR")
+    p.add_argument("--seed", type=int, default=0, help="seed of the swarm / SQP starts (default 0)")
+    p.add_argument("--particles", type=int, default=10, help="PSO particles p (000: 10)")
+    p.add_argument("--iterations", type=int, default=75, help="PSO iterations q (000: 75)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_identify)
+    return p
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """A stand-alone parser with just ``identify`` (for tests and scripts)."""
+    parser = argparse.ArgumentParser(prog="cablesvc")
+    sub = parser.add_subparsers(dest="command")
+    add_parser(sub)
+    return parser
+
+
+def run_identify(argv: Sequence[str]) -> int:
+    """``cablesvc identify ARGV...`` without the main CLI: returns the exit code."""
+    args = build_parser().parse_args(["identify", *argv])
+    return int(args.func(args))

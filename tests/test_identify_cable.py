@@ -1,0 +1,160 @@
+"""Cable models identified from simulated recordings, the CLI and the 002 Sec 4 bench.
+
+The truth parameters come from the objects the tests build (or, where noted, are read
+back only to score); identification itself sees the recording only."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from cablesvc.bench.cable_experiment import effective_values, experiment_truth, run_cable_experiment
+from cablesvc.cli.identify_cmd import build_parser, run_identify
+from cablesvc.config import load_robot
+from cablesvc.config.params import load_params
+from cablesvc.identify.amplitude_fit import reversal_points, segment_levels
+from cablesvc.identify.cable import IdentifyError, cable_data, identify_cable
+from cablesvc.recording import write_recording
+from cablesvc.simulate import TruthConfig, simulate_recording
+
+ROBOT = "planar4"
+HOLD = dict(rate=500.0, frequency=1.0, settle=0.5, rest=0.5)
+
+
+@pytest.fixture(scope="module")
+def amp_truth():
+    return experiment_truth(ROBOT)
+
+
+@pytest.fixture(scope="module")
+def hold_rec(amp_truth):
+    return simulate_recording(ROBOT, "hold-sine", truth=TruthConfig(base=amp_truth, noise_std=0.1), seed=3,
+                              amplitudes=[5e-4, 1e-3, 1.5e-3], **HOLD)
+
+
+def test_segment_levels_finds_the_amplitude_levels(hold_rec):
+    d = cable_data(hold_rec, ROBOT, [1])
+    lv = segment_levels(d.x[:, 0], d.t)
+    assert [round(v.amplitude * 1e4, 6) for v in lv] == [5.0, 10.0, 15.0]
+    assert all(v.half_period == pytest.approx(0.5) for v in lv)
+    assert all(v.reversals.size >= 5 for v in lv)
+    # a reversal is the sample where the motion turns
+    x = np.array([0, 1, 2, 3, 2, 1, 0, 1, 2, 2, 2, 1], float)
+    assert reversal_points(x, 0.5).tolist() == [3, 6, 10]
+
+
+def test_identify_linear_from_short_recording():
+    rec = simulate_recording(ROBOT, "hold-sine", truth=TruthConfig(base_model="linear", noise_std=0.1), seed=4,
+                             amplitudes=[5e-4, 1e-3], **HOLD)
+    ea_true = load_robot(ROBOT).geometry().ea          # the linear truth uses the robot's E*A
+    fit = identify_cable(rec, ROBOT, "linear", cables=[0, 3], seed=1, iterations=15)
+    assert fit.params.model == "linear"
+    for j, c in enumerate([0, 3]):
+        r = fit.results[j]
+        assert r.x[0] == pytest.approx(ea_true[c], rel=2e-3)
+        assert abs(r.x[0] - ea_true[c]) <= 4 * r.stderr[0]
+    assert np.all(fit.rmse < 0.11)
+    assert len(fit.swarm) == 2 and fit.swarm[0].history.size == 16
+    ea = np.asarray(fit.params.params["ea"])
+    assert ea.shape == (4,) and ea[1] == ea_true[1]                  # cables not fitted keep the nominal
+    shared = identify_cable(rec, ROBOT, "linear", cables=[0, 1, 2, 3], shared=True, method="lm")
+    assert len(shared.results) == 1
+    assert shared.results[0].x[0] == pytest.approx(ea_true[0], rel=2e-3)
+
+
+def test_identify_amplitude_model_recovers_truth(hold_rec, amp_truth):
+    fit = identify_cable(hold_rec, ROBOT, "amplitude", cables=[0, 2])
+    assert fit.amplitude is not None and len(fit.amplitude.fits) == 3
+    assert np.all(fit.rmse < 0.13)
+    for A in (5e-4, 1e-3, 1.5e-3):
+        tv = effective_values(amp_truth, 4, A)
+        iv = effective_values(fit.params, 4, A)
+        rel = {k: np.abs(iv[k][[0, 2]] - tv[k][[0, 2]]) / np.abs(tv[k][[0, 2]]) for k in tv}
+        assert np.all(rel["K0"] < 1e-3) and np.all(rel["K1"] < 0.01), (A, rel)
+        assert np.all(rel["S_a"] < 0.02) and np.all(rel["K2"] < 0.05) and np.all(rel["K3"] < 0.05), (A, rel)
+        if A >= 1e-3:
+            assert np.all(rel["alpha"] < 0.05), (A, rel)
+    xc_true = np.asarray(amp_truth.params["x_center"])[[0, 2]]
+    assert np.allclose(fit.amplitude.x_center, xc_true, rtol=1e-6)
+    # per-level standard errors cover the truth at the largest level
+    lt = fit.amplitude.level_table(0)
+    tv = effective_values(amp_truth, 4, lt["A"][-1])
+    for k in ("K0", "K1", "S_a", "alpha"):
+        assert abs(lt[k][-1] - tv[k][0]) <= 4 * lt[k + "_se"][-1], k
+
+
+def test_identify_errors_are_clear(hold_rec):
+    with pytest.raises(IdentifyError, match="out of range"):
+        identify_cable(hold_rec, ROBOT, "linear", cables=[4])
+    with pytest.raises(IdentifyError, match="unknown model"):
+        identify_cable(hold_rec, ROBOT, "spline")
+    with pytest.raises(IdentifyError, match="cables"):
+        identify_cable(hold_rec, "ipanema3", "linear")
+
+
+def test_cli_writes_loadable_params_and_report(tmp_path, hold_rec):
+    rec_path = tmp_path / "hold.mcap"
+    write_recording(rec_path, hold_rec)
+    out = tmp_path / "params.toml"
+    rep = tmp_path / "report"
+    code = run_identify(["--model", "amplitude", "--robot", ROBOT, str(rec_path), "--cables", "1",
+                         "--out", str(out), "--report", str(rep), "--quiet"])
+    assert code == 0
+    p = load_params(out)
+    assert p.model == "amplitude" and p.robot == ROBOT
+    model = p.build(4, 1)                                    # what cablesvc run --params builds
+    assert model.shape == (1, 4)
+    assert p.identification["cables"] == [1]
+    text = (rep / "report.md").read_text()
+    pngs = sorted(f.name for f in rep.glob("*.png"))
+    assert pngs == ["convergence.png", "loops_cable1.png", "residuals.png"]
+    for n in pngs:
+        assert f"]({n})" in text
+        assert (rep / n).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # linear model through the CLI, least squares only
+    out2 = tmp_path / "lin.toml"
+    assert run_identify(["--model", "linear", str(rec_path), "--cables", "0,2", "--method", "lm",
+                         "--out", str(out2), "--quiet"]) == 0
+    assert load_params(out2).model == "linear"
+
+
+def test_cli_errors_exit_1(tmp_path, hold_rec, capsys):
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not an mcap file at all")
+    assert run_identify(["--model", "linear", str(bad), "--quiet"]) == 1
+    assert "cannot read the recording" in capsys.readouterr().err
+    good = tmp_path / "hold.mcap"
+    write_recording(good, hold_rec)
+    assert run_identify(["--model", "spline", str(good), "--quiet"]) == 1
+    assert "unknown model" in capsys.readouterr().err
+    assert run_identify(["--model", "linear", str(good), "--cables", "0,9", "--quiet"]) == 1
+    assert "out of range" in capsys.readouterr().err
+    assert run_identify(["--model", "linear", str(good), "--method", "annealing", "--quiet"]) == 1
+    args = build_parser().parse_args(["identify", str(good)])
+    assert args.model == "amplitude" and args.method == "pso+lm" and args.seed == 0
+
+
+def test_cable_experiment_bench_small():
+    """A reduced 002 Sec 4 experiment: one cable, 0.75 mm held out."""
+    res = run_cable_experiment(ROBOT, cables=[0], rate=500.0, frequency=1.0,
+                               fit_levels=(2.5e-4, 5e-4, 1e-3, 1.5e-3), held_out=7.5e-4)
+    json.dumps(res)
+    assert res["levels_found_mm"] == pytest.approx([0.25, 0.5, 1.0, 1.5])
+    assert res["held_out_rmse_max_n"] <= 0.11
+    assert res["max_rel_err"]["K0"] < 0.02 and res["max_rel_err"]["K1"] < 0.02
+    assert res["met"]["held_out_rmse"] and res["met"]["determined_params_within_2pct"]
+    s = res["sensitivity_table1_truth_cable0"]["1.5 mm"]
+    assert 0.8 < s["K1"] < 1.1 and s["K3"] < s["K1"] and s["K2"] < s["K1"]
+
+
+def test_bench_parser_registers_cable_experiment():
+    import argparse
+
+    from cablesvc.bench import cable_experiment
+    p = argparse.ArgumentParser()
+    sub = p.add_subparsers(dest="bench")
+    cable_experiment.add_parser(sub)
+    args = p.parse_args(["cable-experiment", "--json", "--cycles", "4"])
+    assert args.json and args.cycles == 4 and args.func is cable_experiment.cmd_cable_experiment
