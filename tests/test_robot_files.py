@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from cablesvc.config import Robot, RobotFileError, RobotGeometry, load_robot, robot_search_path
+from cablesvc.config.robot import robot_files
 
 REPO_ROBOTS = Path(__file__).resolve().parents[1] / "robots"
-SHIPPED = sorted(p.stem for p in REPO_ROBOTS.glob("*.toml"))
+SHIPPED = sorted(p.stem for p in robot_files(REPO_ROBOTS))
 
 IPANEMA_FRAME = [
     (-8.544, 5.463, 3.202), (8.184, 5.692, 3.236), (8.224, -5.492, 3.25), (-8.491, -5.322, 3.221),

@@ -610,12 +610,23 @@ def robot_search_path() -> list[Path]:
     return unique
 
 
+def robot_files(directory: str | os.PathLike[str]) -> list[Path]:
+    """Robot definition files in ``directory``: ``NAME.toml`` whose NAME has no dot.
+
+    Companion files of a robot (``NAME.modbus.toml`` register maps, ``NAME.params.toml``)
+    live beside it and are not robots.
+    """
+    d = Path(directory)
+    if not d.is_dir():
+        return []
+    return sorted(p for p in d.glob("*.toml") if "." not in p.stem)
+
+
 def _available_names(dirs: list[Path]) -> list[str]:
-    """Sorted robot names (``*.toml`` stems) found in ``dirs``."""
+    """Sorted robot names found in ``dirs``."""
     names: set[str] = set()
     for d in dirs:
-        if d.is_dir():
-            names.update(p.stem for p in d.glob("*.toml"))
+        names.update(p.stem for p in robot_files(d))
     return sorted(names)
 
 
