@@ -682,8 +682,9 @@ def _brs(msg: Any) -> bool:
     definition = (spec.attribute_definitions or {}).get("CANFD_BRS")
     attr = (spec.attributes or {}).get("CANFD_BRS")
     value: Any = attr.value if attr is not None else (definition.default_value if definition is not None else 1)
-    if definition is not None and definition.choices and isinstance(value, int) and 0 <= value < len(definition.choices):
-        value = definition.choices[value]
+    choices = definition.choices if definition is not None else None
+    if choices and isinstance(value, int) and 0 <= value < len(choices):
+        value = choices[value]
     return str(value).strip() != "0"
 
 
@@ -1274,7 +1275,7 @@ class TickAssembler:
                         f"counter; missing: {', '.join(self._missing(p) + [self.layout.sync.name])}",
                     ))
                     p = self._start(c, ts)
-                p.frames[slot.index] = data
+                p.frames[slot.index] = bytes(data)  # a copy: the caller may reuse the message
                 p.count += 1
         if self._bus_now - self._earliest > self.deadline:
             out.extend(self.expire(bus_time=self._bus_now))
@@ -1307,7 +1308,8 @@ class TickAssembler:
                          f"{codec.name} (0x{codec.frame_id:X}): {len(msg.data)} data bytes"
                          f"{' (CAN FD)' if msg.is_fd else ''}, the DBC says {codec.length}")
 
-    def _close(self, slot: _Slot, data: Union[bytes, bytearray], now_ns: Optional[int]) -> list[Union[TickInput, Rejection]]:
+    def _close(self, slot: _Slot, data: Union[bytes, bytearray],
+               now_ns: Optional[int]) -> list[Union[TickInput, Rejection]]:
         seq = slot.read(data)
         if not self._n_data:
             return [self._build([data, _PAD], seq, now_ns)]
@@ -1557,10 +1559,13 @@ class CanSourceConfig(BaseModel):
 class CanSource(ThreadedSource):
     """Ticks from a CAN bus (see the module docstring for the frames).
 
-    A receive thread reads the bus, feeds :class:`TickAssembler`, validates complete ticks
-    and queues them for :meth:`recv`. A bus error is reported (``disconnected``) and the bus
-    is reopened with backoff (0.05 s doubling to 2 s) until it works again or the source is
-    closed. cablesvc only listens: it never transmits on the bus.
+    A receive thread reads the bus (``recv(timeout)``, then ``recv(0)`` until nothing is
+    queued), feeds :class:`TickAssembler`, validates each tick as soon as its SYNC completes
+    it and queues it for :meth:`recv`. ``config.fd``: the bus is opened with ``fd=True``
+    and the default DBC is ``<robot>-fd.dbc``; a DBC with CAN FD frames needs it. A bus
+    error is reported (``disconnected``) and the bus is reopened with backoff (0.05 s
+    doubling to 2 s) until it works again or the source is closed. cablesvc only listens:
+    it never transmits on the bus.
     """
 
     kind: ClassVar[str] = "can"
