@@ -1,0 +1,160 @@
+"""One place for the live service's alarms: drift, state alarms and the input watch.
+
+The daemon calls :meth:`AlarmManager.on_tick` once per processed tick and
+:meth:`AlarmManager.on_idle` whenever its loop waits; both return the events to publish
+(usually none). The manager keeps the set of active alarms (what the status query shows),
+counts raises per code, and snapshots its state for restarts.
+
+Configuration is an :class:`AlarmConfig`, in TOML a table with three sub-tables::
+
+    [alarms.drift]          # DriftConfig: N, s
+    warmup_s = 60.0
+    cusum_h_ns = 2.0
+    [alarms.state]          # StateAlarmConfig
+    wrench_raise_fraction = 0.25
+    [alarms.input]          # InputConfig: wall-clock s
+    stale_s = 0.05
+    lost_s = 1.0
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from cablesvc.alarms import AlarmEvent
+from cablesvc.alarms.drift import DriftConfig, DriftDetector
+from cablesvc.alarms.state import InputConfig, InputWatch, StateAlarmConfig, StateAlarms
+from cablesvc.config.params import ModelParams
+from cablesvc.config.robot import RobotGeometry
+
+__all__ = ["AlarmConfig", "AlarmManager", "load_alarm_config"]
+
+
+class AlarmConfig(BaseModel):
+    """All alarm settings: ``drift``, ``state`` and ``input`` sections."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    drift: DriftConfig = Field(default_factory=DriftConfig)
+    state: StateAlarmConfig = Field(default_factory=StateAlarmConfig)
+    input: InputConfig = Field(default_factory=InputConfig)
+
+    @classmethod
+    def from_toml(cls, text: str, table: str | None = "alarms") -> "AlarmConfig":
+        """Parse TOML text; ``table`` is the (dotted) table holding the sections, None for the
+        top level. A missing table gives the defaults."""
+        data: Any = tomllib.loads(text)
+        for part in (table.split(".") if table else ()):
+            data = data.get(part, {}) if isinstance(data, dict) else {}
+        return cls.model_validate(data)
+
+
+def load_alarm_config(path: str | Path, table: str | None = "alarms") -> AlarmConfig:
+    """Read an :class:`AlarmConfig` from the ``[alarms]`` table (or ``table``) of a TOML file.
+    Raises ValueError naming the file on a syntax or validation error."""
+    p = Path(path)
+    try:
+        return AlarmConfig.from_toml(p.read_text(), table)
+    except (tomllib.TOMLDecodeError, ValueError) as e:
+        raise ValueError(f"{p}: invalid alarm configuration: {e}") from None
+
+
+class AlarmManager:
+    """Holds a :class:`DriftDetector`, :class:`StateAlarms` and an :class:`InputWatch`.
+
+    ``geom`` the robot, ``params`` the cable model's parameters (for the identified
+    amplitude range), ``config`` an :class:`AlarmConfig`.
+    """
+
+    def __init__(self, geom: RobotGeometry, params: ModelParams | None, config: AlarmConfig | None = None):
+        self.config = cfg = config if config is not None else AlarmConfig()
+        self.geom = geom
+        self.drift = DriftDetector(geom.n_cables, cfg.drift, geom.cable_names)
+        self.state = StateAlarms(geom, params, cfg.state)
+        self.watch = InputWatch(cfg.input.stale_s, cfg.input.lost_s, enabled=cfg.input.enabled)
+        self._drift_on = bool(cfg.drift.enabled)
+        self._active: dict[tuple[str, int | None], AlarmEvent] = {}
+        self.counters: dict[str, int] = {}          # raises per code since start (or snapshot)
+        self.events_total = 0
+
+    def on_tick(self, t: float, seq: int | None, out) -> list[AlarmEvent]:
+        """One processed tick (``out`` the kernel's :class:`~cablesvc.kernel.TickOutput`).
+        Drift runs on the cables whose ``out.residual`` is finite (measured forces present)."""
+        ev = self.watch.tick(t, seq)
+        ev2 = self.state.update(t, seq, out)
+        ev3 = self.drift.update(t, seq, out.residual) if self._drift_on else ev2[:0]
+        if ev or ev2 or ev3:
+            events = ev + ev2 + ev3
+            self._account(events)
+            return events
+        return ev
+
+    def on_idle(self, wall_monotonic: float) -> list[AlarmEvent]:
+        """The daemon loop is waiting: check the input watch at wall time [s] (monotonic)."""
+        events = self.watch.poll(wall_monotonic)
+        if events:
+            self._account(events)
+        return events
+
+    def _account(self, events: list[AlarmEvent]) -> None:
+        for e in events:
+            self.events_total += 1
+            if e.action == "raise":
+                self._active[e.key] = e
+                self.counters[e.code] = self.counters.get(e.code, 0) + 1
+            else:
+                self._active.pop(e.key, None)
+
+    def active(self) -> list[AlarmEvent]:
+        """The raise events of the alarms active now, oldest condition first."""
+        return sorted(self._active.values(), key=lambda e: (e.since if e.since == e.since else e.t, e.code,
+                                                            -1 if e.cable is None else e.cable))
+
+    def reset_drift(self, cables=None) -> list[AlarmEvent]:
+        """Restart the drift baseline (after re-identification); returns clear events for the
+        drift alarms that were active on those cables."""
+        idx = range(self.geom.n_cables) if cables is None else cables
+        out = []
+        for i in idx:
+            e = self._active.get(("drift", int(i)))
+            if e is not None:
+                out.append(AlarmEvent("clear", "drift", int(i), e.severity, e.t, e.since, e.seq,
+                                      f"cable {int(i)}: drift baseline restarted"))
+        self.drift.reset(cables)
+        self._account(out)
+        return out
+
+    # -- snapshots ---------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        """Nested dict of numpy arrays and strings (no objects): drift and state-alarm state,
+        active alarms and counters. The input watch restarts with the process."""
+        return {
+            "drift": self.drift.state_dict(),
+            "state": self.state.state_dict(),
+            "active": np.array(json.dumps([e.payload() for e in self._active.values()])),
+            "counters": np.array(json.dumps(self.counters)),
+        }
+
+    def load_state_dict(self, d: dict[str, Any]) -> None:
+        """Continue from :meth:`state_dict` (also after a save/load through ``np.savez``,
+        where strings come back as 0-d arrays or numpy strings). Missing parts are skipped."""
+        if "drift" in d and "state" in d["drift"]:
+            self.drift.load_state_dict(d["drift"])
+        if "state" in d and "state" in d["state"]:
+            self.state.load_state_dict(d["state"])
+        if "active" in d:
+            active = json.loads(str(np.asarray(d["active"])[()]))
+            self._active = {}
+            for p in active:
+                if p.get("code") in ("input_stale", "input_lost"):
+                    continue              # wall-clock alarms do not survive a restart
+                e = AlarmEvent.from_payload(p)
+                self._active[e.key] = e
+        if "counters" in d:
+            self.counters = {str(k): int(v) for k, v in json.loads(str(np.asarray(d["counters"])[()])).items()}
