@@ -38,7 +38,19 @@ def test_robots_check_reports_every_problem(tmp_path):
     assert "bad.toml" in r.stderr and "frame.anchors[0]" in r.stderr and "platform" in r.stderr
 
 
-def test_run_demo_plays_and_reports_residuals():
-    r = cli("run", "--duration", "0.5", "--speed", "0")
+def test_run_embedded_default_runs_and_stops_cleanly():
+    """`cablesvc run` as the README runs it (simulated controller on virtual CAN, Zenoh peer),
+    here on a free port and for a few seconds."""
+    from cablesvc.sources.controller import free_tcp_port
+
+    r = cli("run", "--no-view", "--no-snapshot", "--seconds", "4", "--listen", f"tcp/127.0.0.1:{free_tcp_port()}")
     assert r.returncode == 0, r.stderr
-    assert "residual RMS per cable" in r.stdout
+    line = next(x for x in r.stderr.splitlines() if "stopped in" in x)
+    ticks = int(line.split(" after ")[1].split()[0])
+    assert ticks > 500, line
+    assert '"rejected": {}' in line, line
+
+
+def test_run_rejects_flags_of_another_source():
+    r = cli("run", "--source", "replay", "--host", "1.2.3.4")
+    assert r.returncode != 0 and "--host does not apply to --source replay" in r.stderr

@@ -5,12 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
 EPILOG = """\
 examples:
-  cablesvc run                                  embedded demo: simulated IPAnema 3 + kernel, live forces
+  cablesvc run                                  live daemon, embedded default: simulated IPAnema 3 on virtual CAN,
+                                                Zenoh peer on 127.0.0.1:7447, live view of forces and alarms
+  cablesvc listen                               print what a running daemon publishes
   cablesvc simulate --robot ipanema3 --scenario hold-sine --out rec.mcap
   cablesvc simulate --robot ipanema3 --scenario trajectory --effect pulley --out traj.mcap
   cablesvc robots check robots/ipanema3.toml    validate a robot file, one line per problem
@@ -21,73 +22,6 @@ examples:
 def _console():
     from rich.console import Console
     return Console(stderr=False)
-
-
-# ---- run -------------------------------------------------------------------------------
-
-def cmd_run(args) -> int:
-    """Until the live daemon exists: the digital twin plays the controller, the kernel
-    predicts every tick, and a live table shows predicted against measured forces."""
-    import numpy as np
-    from rich.live import Live
-    from rich.table import Table
-
-    from cablesvc.config import load_robot
-    from cablesvc.config.params import default_params, load_params
-    from cablesvc.kernel import Predictor
-    from cablesvc.kinematics import inverse_kinematics
-    from cablesvc.simulate import simulate_recording
-
-    robot = load_robot(args.robot)
-    geom = robot.geometry()
-    rec = simulate_recording(robot, args.scenario, None, duration=args.duration, rate=args.rate, seed=args.seed)
-    L = inverse_kinematics(geom, np.zeros((1, 3)), np.array([[0, 0, 0, 1.0]])).length[0]
-    params = load_params(args.params) if args.params else default_params(geom.ea, L, "amplitude")
-    pred = Predictor(geom, params)
-    con = _console()
-    con.print(f"[bold]cablesvc[/] demo: robot [cyan]{robot.name}[/] ({geom.n_cables} cables), scenario "
-              f"[cyan]{args.scenario}[/], model [cyan]{params.model}[/]{' (nominal parameters)' if not args.params else ''}, "
-              f"{rec.n_ticks} ticks at {args.rate:g} Hz. Ctrl-C stops.")
-
-    def table(k, out, lat_us):
-        tb = Table(title=f"t = {out.t:7.3f} s   tick {k}   kernel {lat_us:6.1f} us", expand=False)
-        for col in ("cable", "predicted N", "measured N", "residual N", "elongation mm", "wrap deg", "slack"):
-            tb.add_column(col, justify="right")
-        for i in range(geom.n_cables):
-            tb.add_row(geom.cable_names[i], f"{out.force[i]:8.2f}", f"{out.measured[i]:8.2f}",
-                       f"{out.residual[i]:+7.2f}", f"{out.elongation[i] * 1e3:7.3f}",
-                       f"{np.degrees(out.wrap_angle[i]):6.1f}", "yes" if out.slack[i] else "")
-        return tb
-
-    start = time.monotonic()
-    shown = -1.0
-    lat = 0.0
-    resid = []
-    try:
-        with Live(console=con, refresh_per_second=8, transient=False) as live:
-            for k in range(rec.n_ticks):
-                t = float(rec.t[k])
-                if args.speed > 0:
-                    delay = start + (t - rec.t[0]) / args.speed - time.monotonic()
-                    if delay > 0:
-                        time.sleep(delay)
-                pos = rec.position[k] if rec.position is not None else None
-                quat = rec.orientation[k] if rec.orientation is not None else None
-                a = time.perf_counter_ns()
-                out = pred.tick(t, rec.motor_length[k], pos, quat,
-                                rec.force[k] if rec.force is not None else None,
-                                None if rec.temperature is None else float(rec.temperature[k]))
-                lat = 0.98 * lat + 0.02 * (time.perf_counter_ns() - a) / 1e3 if k else (time.perf_counter_ns() - a) / 1e3
-                resid.append(out.residual.copy())
-                if time.monotonic() - shown > 0.125:
-                    live.update(table(k, out, lat))
-                    shown = time.monotonic()
-    except KeyboardInterrupt:
-        con.print("stopped")
-    r = np.array(resid)
-    if r.size and np.isfinite(r).any():
-        con.print(f"residual RMS per cable (N): {np.sqrt(np.nanmean(r ** 2, axis=0)).round(3).tolist()}")
-    return 0
 
 
 # ---- simulate --------------------------------------------------------------------------
@@ -131,11 +65,12 @@ def cmd_simulate(args) -> int:
 
 def cmd_robots(args) -> int:
     from cablesvc.config import RobotFileError, load_robot, robot_search_path
+    from cablesvc.config.robot import robot_files
 
     if args.action == "list":
         seen = set()
         for d in robot_search_path():
-            for p in sorted(Path(d).glob("*.toml")) if Path(d).is_dir() else []:
+            for p in robot_files(d):
                 if p.stem in seen:
                     continue
                 seen.add(p.stem)
@@ -199,16 +134,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"cablesvc {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
 
-    r = sub.add_parser("run", help="run the predictor (embedded demo by default)",
-                       description=cmd_run.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    r.add_argument("--robot", default="ipanema3", help="robot name or .toml path (default: ipanema3)")
-    r.add_argument("--params", help="cable-model parameter file (default: nominal amplitude model)")
-    r.add_argument("--scenario", default="trajectory", help="twin scenario to play (default: trajectory)")
-    r.add_argument("--duration", type=float, default=60.0, help="seconds of simulated operation (default 60)")
-    r.add_argument("--rate", type=float, default=1000.0, help="tick rate in Hz (default 1000)")
-    r.add_argument("--speed", type=float, default=1.0, help="playback speed factor; 0 = as fast as possible")
-    r.add_argument("--seed", type=int, default=0)
-    r.set_defaults(func=cmd_run)
+    from cablesvc.cli import run_cmd
+    run_cmd.add_parser(sub)
 
     s = sub.add_parser("simulate", help="write a recording from the digital twin",
                        description="Digital twin: drives the robot and records pose, motor lengths, measured "
@@ -228,6 +155,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--list", action="store_true", help="list scenarios and effects")
     s.set_defaults(func=cmd_simulate)
 
+    from cablesvc.cli import identify_cmd, listen_cmd
+    listen_cmd.add_parser(sub)
+    identify_cmd.add_parser(sub)
+
     rb = sub.add_parser("robots", help="list or check robot definition files")
     rb.add_argument("action", choices=["list", "check"])
     rb.add_argument("files", nargs="*", help="files to check")
@@ -246,6 +177,13 @@ def build_parser() -> argparse.ArgumentParser:
                     help="only these inputs (repeatable; default all)")
     bk.add_argument("--json", action="store_true", help="one JSON object per run")
     bk.set_defaults(func=cmd_bench_kernel)
+    from cablesvc.bench import e2e
+    e2e.add_parser(bsub)
+    from cablesvc.bench import alarms, boucwen, cable_experiment, can_codec
+    alarms.add_parser(bsub)
+    boucwen.add_parser(bsub)
+    cable_experiment.add_parser(bsub)
+    can_codec.add_parser(bsub)
     b.set_defaults(func=lambda a: (b.print_help(), 2)[1])
     return p
 

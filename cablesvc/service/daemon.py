@@ -1,0 +1,502 @@
+"""The live daemon: bus source -> fixed-time kernel -> alarms -> Zenoh (and MCAP, snapshots).
+
+One loop in one thread does, per input tick::
+
+    tick = source.recv()                    # CAN / Modbus / replay, validated by the source
+    out = predictor.tick(...)               # IK, wrap angles, hysteretic forces (cablesvc.kernel)
+    events = alarms.on_tick(...)            # drift (EWMA + CUSUM) and state alarms
+    publisher.publish_forces(...)           # cablesvc/<robot>/forces
+    publisher.publish_alarm(...)            # cablesvc/<robot>/alarms (raise / clear)
+
+Everything slower or optional runs beside the loop, never in it: the MCAP recorder is a
+writer thread fed by a bounded queue (a full queue drops and counts, it never blocks the
+loop), the status queryable builds its answer from counters the loop updates, the
+terminal view reads a copy made ten times a second, and snapshots of the hysteresis
+state are written atomically (temporary file, fsync, rename) every few seconds and at
+shutdown, and restored at start when they belong to the same robot and parameters.
+
+Bad input never stops the loop: sources reject it (counted by reason, reported as
+problems); an exception inside the kernel is counted as ``kernel_error``, the kernel is
+reset, and the loop goes on.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import queue
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from cablesvc import __version__
+from cablesvc.config.params import ModelParams
+from cablesvc.config.robot import Robot
+from cablesvc.kernel import Predictor
+
+log = logging.getLogger("cablesvc.daemon")
+
+SNAPSHOT_FORMAT = 1
+
+
+# ---- options ---------------------------------------------------------------------------
+
+@dataclass
+class DaemonOptions:
+    """What ``cablesvc run`` configures. Paths may be None (feature off)."""
+
+    robot: Robot
+    params: ModelParams
+    source: dict[str, Any]                       # a SourceConfig as a dict (kind=can|modbus|replay)
+    zenoh_config_file: str | None = None         # router / TLS / access control; None = loopback peer
+    listen: tuple[str, ...] | None = None        # None: the config file's, else tcp/127.0.0.1:7447
+    connect: tuple[str, ...] | None = None       # None: the config file's, else none
+    encoding: str = "json"                       # json | compact
+    record: Path | None = None                   # MCAP of inputs and outputs
+    snapshot: Path | None = None                 # hysteresis state file
+    snapshot_interval_s: float = 5.0
+    alarm_config: Any = None                     # cablesvc.alarms.AlarmConfig or None for defaults
+    exit_when_finished: bool = True              # replay: stop at the end of the file
+    record_queue: int = 100_000                  # ticks the recorder may lag behind
+    wait_subscriber_s: float = 0.0               # before reading the source, wait this long for a subscriber
+
+
+def default_snapshot_path(robot: str) -> Path:
+    """``$CABLESVC_STATE_DIR`` or ``$XDG_STATE_HOME/cablesvc`` or ``~/.local/state/cablesvc``."""
+    base = os.environ.get("CABLESVC_STATE_DIR")
+    if not base:
+        base = os.path.join(os.environ.get("XDG_STATE_HOME", os.path.expanduser("~/.local/state")), "cablesvc")
+    return Path(base) / f"{robot}.state.npz"
+
+
+def params_fingerprint(params: ModelParams) -> str:
+    """Short hash of the parameter file's content: a snapshot only restores onto the same model."""
+    return hashlib.sha256(params.to_toml().encode()).hexdigest()[:16]
+
+
+# ---- snapshots -------------------------------------------------------------------------
+
+def _flatten_state(prefix: str, d: Any, out: dict[str, np.ndarray]) -> None:
+    if isinstance(d, dict):
+        for k, v in d.items():
+            _flatten_state(f"{prefix}{k}/", v, out)
+    else:
+        out[prefix[:-1]] = np.asarray(d)
+
+
+def _unflatten_state(prefix: str, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
+    root: dict[str, Any] = {}
+    for key, v in arrays.items():
+        if not key.startswith(prefix):
+            continue
+        parts = key[len(prefix):].split("/")
+        node = root
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+        node[parts[-1]] = v[()] if v.ndim == 0 else v
+    return root
+
+
+def write_snapshot(path: Path, meta: dict[str, Any], predictor_state: dict[str, np.ndarray],
+                   alarm_state: dict[str, Any]) -> None:
+    """Atomic snapshot: write a temporary file next to ``path``, fsync it, rename over ``path``.
+
+    A crash at any moment leaves either the previous snapshot or the new one, never a torn file.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays: dict[str, np.ndarray] = {"meta": np.array(json.dumps(meta))}
+    _flatten_state("kernel/", predictor_state, arrays)
+    _flatten_state("alarms/", alarm_state, arrays)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as f:
+        np.savez(f, **arrays)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    try:                                  # make the rename itself durable
+        dfd = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(dfd)
+        finally:
+            os.close(dfd)
+    except OSError:
+        pass
+
+
+def read_snapshot(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray], dict[str, Any]]:
+    """(meta, predictor state, alarm state) of a snapshot file; raises ValueError when unreadable."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        meta = json.loads(str(arrays["meta"][()]))
+    except Exception as e:                 # noqa: BLE001 - any damage means "not restorable"
+        raise ValueError(f"{path}: not a readable cablesvc snapshot ({e})") from e
+    kernel = {k[len("kernel/"):]: v for k, v in arrays.items() if k.startswith("kernel/")}
+    return meta, kernel, _unflatten_state("alarms/", arrays)
+
+
+# ---- MCAP recorder ---------------------------------------------------------------------
+
+class Recorder:
+    """MCAP writer thread: the loop hands it (input, forces payload, alarm payloads) tuples.
+
+    The queue is bounded; when the disk cannot keep up, ticks are dropped and counted
+    (``dropped``), and the loop never waits.
+    """
+
+    def __init__(self, path: Path, robot: str, metadata: dict[str, str], maxsize: int):
+        from cablesvc.recording import ALARMS_TOPIC, FORCES_TOPIC, McapRecordingWriter
+
+        self._forces_topic = FORCES_TOPIC
+        self._alarms_topic = ALARMS_TOPIC
+        self.writer = McapRecordingWriter(path, robot, metadata=metadata)
+        self.q: queue.Queue = queue.Queue(maxsize=maxsize)
+        self.dropped = 0
+        self.written = 0
+        self.error: str | None = None
+        self._thread = threading.Thread(target=self._run, name="cablesvc-recorder", daemon=True)
+        self._thread.start()
+
+    def put(self, item) -> None:
+        try:
+            self.q.put_nowait(item)
+        except queue.Full:
+            self.dropped += 1
+
+    def _run(self) -> None:
+        while True:
+            item = self.q.get()
+            if item is None:
+                return
+            if self.error:
+                continue
+            tick, forces, alarms = item
+            try:
+                self.writer.write_input(tick.seq, tick.t, tick.motor_length, tick.force, tick.position,
+                                        tick.orientation, tick.temperature)
+                self.writer.write(self._forces_topic, tick.t, forces)
+                for a in alarms:
+                    self.writer.write(self._alarms_topic, tick.t, a)
+                self.written += 1
+            except Exception as e:  # noqa: BLE001 - a full disk must not stop the daemon
+                self.error = f"recording stopped: {e}"
+                log.error(self.error)
+
+    def close(self, timeout: float = 1.5) -> None:
+        try:
+            self.q.put(None, timeout=timeout)
+        except queue.Full:
+            pass
+        self._thread.join(timeout)
+        try:
+            self.writer.close()
+        except Exception as e:  # noqa: BLE001
+            log.error("closing the recording failed: %s", e)
+
+
+# ---- the daemon ------------------------------------------------------------------------
+
+@dataclass
+class LoopStats:
+    """Counters the loop updates and the status queryable reads (plain Python numbers)."""
+
+    started: float = field(default_factory=time.monotonic)
+    ticks: int = 0
+    published: int = 0                  # publish calls (the publisher counts what went out)
+    kernel_errors: int = 0
+    publish_errors: int = 0
+    alarms_raised: int = 0
+    last_seq: int | None = None
+    last_t: float | None = None
+    rate_window: deque = field(default_factory=lambda: deque(maxlen=2001))
+
+
+class Daemon:
+    """Source, kernel, alarms, publisher: see the module docstring.
+
+    ``publisher_factory(robot_name, status_fn) -> Publisher`` exists so that a test can
+    pass a real publisher with its own config; by default a Zenoh publisher is opened from
+    the options.
+    """
+
+    def __init__(self, options: DaemonOptions, *, source=None, publisher_factory: Callable | None = None):
+        from cablesvc.alarms import AlarmConfig, AlarmManager
+        from hdrh.histogram import HdrHistogram
+
+        self.opt = options
+        self.robot = options.robot
+        self.name = options.robot.name
+        self.geom = options.robot.geometry()
+        self.params = options.params
+        self.fingerprint = params_fingerprint(options.params)
+        self.predictor = Predictor(self.geom, options.params)
+        self.alarms = AlarmManager(self.geom, options.params, options.alarm_config or AlarmConfig())
+        self.stats = LoopStats()
+        self.hist = HdrHistogram(1, 60_000_000, 3)          # microseconds, input stamp -> published
+        self.problems: deque = deque(maxlen=200)           # recent rejected inputs (for status)
+        self.restored_from: str | None = None
+        self._lock = threading.Lock()
+        self._view_copy: dict[str, Any] | None = None
+        self._view_at = 0.0
+        self._last_snapshot = time.monotonic()
+        self.snapshot_path = options.snapshot
+        self.snapshot_error: str | None = None
+        self._restore()
+
+        if source is None:
+            from cablesvc.sources import open_source
+            source = open_source(self.robot, options.source)
+        self.source = source
+        self.recorder: Recorder | None = None
+        self.publisher = None
+        try:
+            if publisher_factory is None:
+                from cablesvc.service.zenoh_io import Publisher, make_config
+                given = {k: v for k, v in (("listen", options.listen), ("connect", options.connect)) if v is not None}
+                cfg = make_config(options.zenoh_config_file, **given)
+                self.publisher = Publisher(self.name, cfg, encoding=options.encoding, status=self.status)
+            else:
+                self.publisher = publisher_factory(self.name, self.status)
+            if options.record is not None:
+                md = {"source": json.dumps(options.source, default=str), "model": options.params.model,
+                      "params": options.params.to_toml(), "cablesvc_version": __version__}
+                self.recorder = Recorder(Path(options.record), self.name, md, options.record_queue)
+            self.source.open()
+        except BaseException:
+            self._close_outputs()
+            raise
+
+    # -- state restore / snapshot ---------------------------------------------------------
+    def _snapshot_meta(self) -> dict[str, Any]:
+        return {"format": SNAPSHOT_FORMAT, "robot": self.name, "model": self.params.model,
+                "params": self.fingerprint, "seq": self.stats.last_seq, "t": self.stats.last_t,
+                "wall_time": time.time(), "cablesvc_version": __version__}
+
+    def _restore(self) -> None:
+        p = self.snapshot_path
+        if p is None or not p.exists():
+            return
+        try:
+            meta, kernel, alarms = read_snapshot(p)
+            why = None
+            if meta.get("format") != SNAPSHOT_FORMAT:
+                why = f"snapshot format {meta.get('format')} (expected {SNAPSHOT_FORMAT})"
+            elif meta.get("robot") != self.name:
+                why = f"it belongs to robot {meta.get('robot')!r}"
+            elif meta.get("params") != self.fingerprint:
+                why = "it was made with other model parameters"
+            if why:
+                log.warning("not restoring %s: %s; starting from rest", p, why)
+                self.snapshot_error = f"not restored: {why}"
+                return
+            if kernel:
+                self.predictor.load_state_dict(kernel)
+            if alarms:
+                self.alarms.load_state_dict(alarms)
+            self.restored_from = str(p)
+            log.info("restored hysteresis state from %s (seq %s, t %s)", p, meta.get("seq"), meta.get("t"))
+        except Exception as e:  # noqa: BLE001 - a bad snapshot must never stop the start
+            self.predictor.reset()
+            self.snapshot_error = f"not restored: {e}"
+            log.warning("not restoring %s: %s; starting from rest", p, e)
+
+    def snapshot(self) -> None:
+        """Write the hysteresis and alarm state atomically (no-op without a snapshot path)."""
+        if self.snapshot_path is None:
+            return
+        try:
+            write_snapshot(self.snapshot_path, self._snapshot_meta(), self.predictor.state_dict(),
+                           self.alarms.state_dict())
+            self.snapshot_error = None
+        except Exception as e:  # noqa: BLE001 - a full disk must not stop the daemon
+            self.snapshot_error = f"snapshot failed: {e}"
+            log.error("%s", self.snapshot_error)
+        self._last_snapshot = time.monotonic()
+
+    # -- status ---------------------------------------------------------------------------
+    def tick_rate(self) -> float:
+        w = list(self.stats.rate_window)
+        if len(w) < 2 or w[-1] <= w[0]:
+            return 0.0
+        return (len(w) - 1) / ((w[-1] - w[0]) / 1e9)
+
+    def status(self) -> dict[str, Any]:
+        """Answer of the ``cablesvc/<robot>/status`` queryable (JSON-able)."""
+        h = self.hist
+        n = h.get_total_count()
+        lat = {"count": n}
+        if n:
+            lat.update(p50_us=h.get_value_at_percentile(50), p99_us=h.get_value_at_percentile(99),
+                       p999_us=h.get_value_at_percentile(99.9), max_us=h.get_max_value())
+        s = self.stats
+        counters = self.source.counters.as_dict()
+        if s.kernel_errors:
+            counters.setdefault("rejected", {})["kernel_error"] = s.kernel_errors
+        out = {
+            "robot": self.name,
+            "version": __version__,
+            "uptime_s": round(time.monotonic() - s.started, 3),
+            "ticks": s.ticks,
+            "published": getattr(self.publisher, "forces_published", s.published),
+            "skipped_no_subscriber": getattr(self.publisher, "forces_skipped", 0),
+            "tick_rate_hz": round(self.tick_rate(), 3),
+            "latency_us": lat,
+            "input": {"source": self.opt.source.get("kind"), **counters},
+            "recent_problems": [{"wall_time": p.wall_time, "reason": p.reason, "message": p.message}
+                                for p in list(self.problems)[-10:]],
+            "model": {"name": self.params.model, "params_file": self.params.source,
+                      "fingerprint": self.fingerprint, "params": _jsonable(self.params.params),
+                      "identification": _jsonable(self.params.identification)},
+            "alarms_active": [e.payload() for e in self.alarms.active()],
+            "snapshot": {"path": str(self.snapshot_path) if self.snapshot_path else None,
+                         "restored_from": self.restored_from, "error": self.snapshot_error},
+            "last": {"seq": s.last_seq, "t": s.last_t},
+        }
+        if self.recorder is not None:
+            out["recording"] = {"path": str(self.opt.record), "written": self.recorder.written,
+                                "dropped": self.recorder.dropped, "error": self.recorder.error}
+        return out
+
+    def view(self) -> dict[str, Any] | None:
+        """Copy of the last output for the terminal view (refreshed ten times a second)."""
+        with self._lock:
+            return self._view_copy
+
+    # -- the loop -------------------------------------------------------------------------
+    def step(self, tick) -> None:
+        """Process one validated input tick."""
+        from cablesvc.service.messages import forces_payload
+
+        s = self.stats
+        try:
+            out = self.predictor.tick(tick.t, tick.motor_length, tick.position, tick.orientation,
+                                      tick.force, tick.temperature)
+        except Exception as e:  # noqa: BLE001 - counted, reset, go on
+            s.kernel_errors += 1
+            self.predictor.reset()
+            self._problem("kernel_error", f"kernel failed on seq {tick.seq}: {e}")
+            return
+        events = self.alarms.on_tick(tick.t, tick.seq, out)
+        payload = forces_payload(self.name, tick.seq, out, tick.stamp_ns, self.geom.cable_names)
+        pub = self.publisher
+        try:
+            pub.publish_forces(payload)
+            s.published += 1
+        except Exception as e:  # noqa: BLE001
+            s.publish_errors += 1
+            self._problem("publish_error", f"publishing forces failed: {e}")
+        alarm_payloads = [ev.payload() for ev in events] if events else ()
+        for a in alarm_payloads:
+            try:
+                pub.publish_alarm(a)
+            except Exception as e:  # noqa: BLE001
+                s.publish_errors += 1
+                self._problem("publish_error", f"publishing an alarm failed: {e}")
+            if a.get("action") == "raise":
+                s.alarms_raised += 1
+        now = time.monotonic_ns()
+        lat_us = (now - tick.stamp_ns) // 1000
+        if lat_us >= 1:
+            self.hist.record_value(min(lat_us, 60_000_000))
+        s.ticks += 1
+        s.last_seq = tick.seq
+        s.last_t = tick.t
+        s.rate_window.append(now)
+        if self.recorder is not None:
+            self.recorder.put((tick, payload, alarm_payloads))
+        if now * 1e-9 - self._view_at > 0.1:
+            self._view_at = now * 1e-9
+            v = {"t": out.t, "seq": tick.seq, "force": out.force.copy(), "measured": out.measured.copy(),
+                 "residual": out.residual.copy(), "elongation": out.elongation.copy(),
+                 "wrap_angle": out.wrap_angle.copy(), "slack": out.slack.copy(),
+                 "pose_from_fk": out.pose_from_fk}
+            with self._lock:
+                self._view_copy = v
+
+    def _problem(self, reason: str, message: str) -> None:
+        from cablesvc.sources.base import Problem
+        self.problems.append(Problem(time.time(), reason, message))
+        log.warning("%s: %s", reason, message)
+
+    def _idle(self) -> None:
+        events = self.alarms.on_idle(time.monotonic())
+        for ev in events:
+            p = ev.payload()
+            try:
+                self.publisher.publish_alarm(p)
+            except Exception as e:  # noqa: BLE001
+                self.stats.publish_errors += 1
+                self._problem("publish_error", f"publishing an alarm failed: {e}")
+            if p.get("action") == "raise":
+                self.stats.alarms_raised += 1
+
+    def run(self, stop: threading.Event, *, max_ticks: int | None = None) -> int:
+        """Run until ``stop`` is set (or the replay ends, or ``max_ticks``). Returns 0."""
+        src = self.source
+        last_idle = 0.0
+        if self.opt.wait_subscriber_s > 0 and hasattr(self.publisher, "subscribed"):
+            end = time.monotonic() + self.opt.wait_subscriber_s
+            while not stop.is_set() and time.monotonic() < end and not self.publisher.subscribed("forces"):
+                stop.wait(0.02)
+            if not self.publisher.subscribed("forces"):
+                log.warning("no subscriber after %.1f s; starting anyway", self.opt.wait_subscriber_s)
+        while not stop.is_set():
+            tick = src.recv(timeout=0.05)
+            if tick is not None:
+                self.step(tick)
+            for p in src.problems():
+                self.problems.append(p)
+            now = time.monotonic()
+            if tick is None or now - last_idle > 0.01:
+                self._idle()
+                last_idle = now
+            if self.snapshot_path is not None and now - self._last_snapshot > self.opt.snapshot_interval_s:
+                self.snapshot()
+            if tick is None and src.finished and self.opt.exit_when_finished:
+                break
+            if max_ticks is not None and self.stats.ticks >= max_ticks:
+                break
+        return 0
+
+    # -- shutdown -------------------------------------------------------------------------
+    def _close_outputs(self) -> None:
+        if self.recorder is not None:
+            self.recorder.close()
+            self.recorder = None
+        if self.publisher is not None:
+            try:
+                self.publisher.close()
+            except Exception as e:  # noqa: BLE001
+                log.error("closing Zenoh failed: %s", e)
+            self.publisher = None
+
+    def close(self) -> None:
+        """Stop the source, write the final snapshot, close the recording and Zenoh (< 2 s)."""
+        try:
+            self.source.close()
+        except Exception as e:  # noqa: BLE001
+            log.error("closing the source failed: %s", e)
+        self.snapshot()
+        self._close_outputs()
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _jsonable(v.tolist())
+    if isinstance(v, (np.floating, float)):
+        f = float(v)
+        return f if np.isfinite(f) else None
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    return v
