@@ -1,0 +1,206 @@
+"""``cablesvc bench discover``: does discovery name physics it is not told about?
+
+Each case is a short simulated recording (``trajectory`` scenario of ipanema3, 30 s at
+100 Hz, sensor noise 0.1 N) from the digital twin with the nominal amplitude model as its
+base and
+
+* one effect of :data:`cablesvc.simulate.EFFECTS` (single cases; the effects are taken in
+  turn so each appears equally often),
+* two different effects (pair cases),
+* no effect (controls),
+
+each effect on a random set of 1 to 3 cables with a random magnitude: a noise-free pilot
+run at the effect's default magnitude measures the effect's RMS in the residual on its
+weakest cable, and the magnitude is scaled so that this RMS is a log-uniform draw between
+``2.5`` and ``8`` times the sensor noise (so every effect is at least twice the noise;
+checked afterwards on the noisy recording, and rescaled once when the effect is not
+linear in its magnitude). Signs are random where physics allows both (offset, c_T).
+
+Discovery (:func:`cablesvc.discover.discover`, nominal baseline, no hint) gets the
+recording with its ``truth`` metadata removed; only this harness reads the truth, to
+score. A single case is correct when the named terms are exactly the true effect; a pair
+case when they are exactly both effects; a control is a false finding when anything is
+named. The RMSE reduction is the drop of the test-block RMS residual over the affected
+cables. ``--json`` prints the keys ``cases``, ``single_correct``, ``single_total``,
+``pair_correct``, ``pair_total``, ``control_false``, ``control_total``,
+``median_rmse_reduction`` (plus ``confusion``, ``per_case`` and ``seconds``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any, Optional
+
+import numpy as np
+
+from cablesvc.simulate import EFFECTS, TruthConfig, simulate_twin
+from cablesvc.simulate.physics import Effect
+
+__all__ = ["run_bench", "make_case", "add_parser", "main", "NOISE", "ROBOT", "SCENARIO"]
+
+NOISE = 0.1          # sensor noise [N]
+ROBOT = "ipanema3"
+SCENARIO = "trajectory"
+DURATION = 30.0      # s
+RATE = 100.0         # Hz
+RATIO = (2.5, 8.0)   # effect RMS / noise on the weakest affected cable
+SIGNED = {"offset_gain", "temperature"}
+#: how an effect's residual scales with its magnitude (exponent), for the calibration
+POWER = {"sag": 2.0}
+#: effects whose residual is not proportional to their magnitude (calibration re-checked)
+NONLINEAR = {"sag", "deadtime"}
+
+
+@dataclass
+class Case:
+    kind: str                      # single | pair | control
+    effects: list[Effect]
+    seed: int
+    recording: Any
+    effect_rms: dict[str, float]   # min over its cables of the effect's RMS [N]
+
+
+def _strip_truth(rec):
+    r = copy.copy(rec)
+    r.metadata = {k: v for k, v in rec.metadata.items() if k != "truth"}
+    return r
+
+
+def _effect_rms(eff: Effect, seed: int, base: np.ndarray) -> float:
+    run = simulate_twin(ROBOT, SCENARIO, truth=TruthConfig(effects=[eff], noise_std=0.0), duration=DURATION,
+                        rate=RATE, seed=seed)
+    d = run.output.measured - base
+    cs = list(run.truth.effects[0].applied_cables)
+    return float(np.min(np.sqrt(np.mean(d[:, cs] ** 2, axis=0))))
+
+
+def make_case(kind: str, names: list[str], seed: int, rng: np.random.Generator, m: int = 8) -> Case:
+    """Simulate one case (see the module docstring); returns it with the truth stripped
+    from the recording handed to discovery."""
+    base = None if not names else simulate_twin(ROBOT, SCENARIO, truth=TruthConfig(noise_std=0.0),
+                                                duration=DURATION, rate=RATE, seed=seed).output.measured
+    effects, rms = [], {}
+    for name in names:
+        cls = EFFECTS[name]
+        k = int(rng.integers(1, 4))
+        cables = tuple(sorted(rng.choice(m, size=k, replace=False).tolist()))
+        sign = -1.0 if (name in SIGNED and rng.random() < 0.5) else 1.0
+        ref = abs(cls.default_magnitude) * sign
+        e0 = _effect_rms(cls(magnitude=ref, cables=cables), seed, base)
+        target = NOISE * math.exp(rng.uniform(math.log(RATIO[0]), math.log(RATIO[1])))
+        p = POWER.get(name, 1.0)
+        mag = ref * (target / e0) ** (1.0 / p)
+        e1 = target
+        for _ in range(3 if name in NONLINEAR else 0):                      # non-linear effects (dead time, sag): correct
+            e1 = _effect_rms(cls(magnitude=mag, cables=cables), seed, base)
+            if e1 >= 2.0 * NOISE:
+                break
+            mag = mag * (target / max(e1, 1e-9)) ** (1.0 / p)
+        effects.append(cls(magnitude=mag, cables=cables))
+        rms[name] = e1
+    run = simulate_twin(ROBOT, SCENARIO, truth=TruthConfig(effects=effects, noise_std=NOISE), duration=DURATION,
+                        rate=RATE, seed=seed)
+    return Case(kind=kind, effects=effects, seed=seed, recording=run.recording, effect_rms=rms)
+
+
+def _plan(cases: int, rng: np.random.Generator) -> list[tuple[str, list[str]]]:
+    names = list(EFFECTS)
+    plan = [("single", [names[i % len(names)]]) for i in range(cases)]
+    pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
+    order = rng.permutation(len(pairs))
+    n_pair = max(1, cases // 2)
+    plan += [("pair", list(pairs[order[i % len(pairs)]])) for i in range(n_pair)]
+    plan += [("control", []) for _ in range(max(1, cases // 2))]
+    return plan
+
+
+def run_bench(cases: int = 40, seed: int = 0, progress: Optional[Any] = None) -> dict[str, Any]:
+    """Run the benchmark: ``cases`` single-effect cases, half as many pairs and controls."""
+    from cablesvc.discover import discover
+    t0 = time.perf_counter()
+    rng = np.random.default_rng([seed, 6])
+    plan = _plan(cases, rng)
+    per_case = []
+    labels = list(EFFECTS) + ["none"]
+    conf: dict[str, dict[str, int]] = {}
+    for i, (kind, names) in enumerate(plan):
+        cs = int(rng.integers(0, 2 ** 31 - 1))
+        case = make_case(kind, names, cs, np.random.default_rng([seed, 7, i]))
+        d = discover(_strip_truth(case.recording), ROBOT)
+        named = sorted(set(d.named))
+        truth = sorted(names)
+        affected = sorted({c for e in case.effects for c in e.cables}) if case.effects else None
+        red = d.reduction(affected) if affected else None
+        ok = named == truth
+        row = conf.setdefault("+".join(truth) if truth else "none", {})
+        for n in (named or ["nothing"]):
+            row[n] = row.get(n, 0) + 1
+        per_case.append({"kind": kind, "seed": cs, "truth": [e.describe() for e in case.effects],
+                         "effect_rms": case.effect_rms, "named": {f.term: f.cables for f in d.findings},
+                         "correct": ok, "both_named": set(truth) <= set(named),
+                         "rmse_reduction": red})
+        if progress:
+            progress(i + 1, len(plan), f"{kind} {truth} -> {named}")
+    sing = [c for c in per_case if c["kind"] == "single"]
+    pair = [c for c in per_case if c["kind"] == "pair"]
+    ctrl = [c for c in per_case if c["kind"] == "control"]
+    reds = [c["rmse_reduction"] for c in per_case if c["rmse_reduction"] is not None]
+    return {
+        "cases": len(per_case),
+        "single_correct": sum(c["correct"] for c in sing), "single_total": len(sing),
+        "pair_correct": sum(c["correct"] for c in pair), "pair_total": len(pair),
+        "pair_both_named": sum(c["both_named"] for c in pair),
+        "control_false": sum(not c["correct"] for c in ctrl), "control_total": len(ctrl),
+        "median_rmse_reduction": float(np.median(reds)) if reds else None,
+        "confusion": conf, "labels": labels, "per_case": per_case,
+        "seconds": time.perf_counter() - t0, "seed": seed,
+    }
+
+
+def format_confusion(res: dict[str, Any]) -> str:
+    cols = list(EFFECTS) + ["nothing"]
+    extra = sorted({k for row in res["confusion"].values() for k in row} - set(cols))
+    cols += extra
+    w = max(12, max(len(c) for c in cols) + 1)
+    rows = [k for k in list(EFFECTS) + ["none"] if k in res["confusion"]]
+    rows += sorted(k for k in res["confusion"] if k not in rows)
+    wr = max(14, max(len(r) for r in rows) + 1)
+    lines = ["true \\ named".ljust(wr) + "".join(c[:w - 1].rjust(w) for c in cols)]
+    for r in rows:
+        lines.append(r.ljust(wr) + "".join(str(res["confusion"][r].get(c, 0) or ".").rjust(w) for c in cols))
+    return "\n".join(lines)
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("discover", help="discovery on simulated recordings with concealed effects",
+                              description=__doc__.split("\n\n")[0])
+    p.add_argument("--cases", type=int, default=40, help="single-effect cases (pairs and controls: half as many)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.set_defaults(func=main)
+    return p
+
+
+def main(args) -> int:
+    if args.cases < 1:
+        print("--cases must be >= 1", file=sys.stderr)
+        return 2
+    prog = None if args.json else (lambda i, n, text: print(f"[{i}/{n}] {text}", file=sys.stderr, flush=True))
+    res = run_bench(args.cases, args.seed, progress=prog)
+    if args.json:
+        print(json.dumps(res, indent=1, default=float))
+        return 0
+    print(format_confusion(res))
+    print(f"single effect named correctly: {res['single_correct']}/{res['single_total']}")
+    print(f"both effects named (exactly):  {res['pair_correct']}/{res['pair_total']} "
+          f"(both among those named: {res['pair_both_named']})")
+    print(f"false findings in controls:    {res['control_false']}/{res['control_total']}")
+    print(f"median held-out RMSE reduction on affected cables: {res['median_rmse_reduction']:.1%}")
+    print(f"{res['cases']} cases in {res['seconds']:.0f} s")
+    return 0

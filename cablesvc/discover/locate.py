@@ -1,0 +1,166 @@
+"""Where the residual lives: which cables, which time segments, which regions of state.
+
+* :func:`noise_floor`: the white-noise level of a residual from its first differences
+  (smooth model errors cancel in a difference, sensor noise does not): sigma =
+  std(diff r) / sqrt(2) [N].
+* :func:`cable_excess`: per cable, residual RMS against that floor; a cable "carries" the
+  residual when RMS > ``ratio`` x floor.
+* :func:`change_points`: binary segmentation of the residual's mean (averaged in windows of
+  ``window`` s) with a BIC penalty: the times at which the mismatch changes level.
+* :func:`state_regions`: for each state variable (tension, wrap angle, direction of
+  motion, amplitude, temperature, time since start, pose, elongation rate), the share of
+  the residual's variance explained by its quantile bins (the correlation ratio eta^2);
+  plus the residual's spectrum in frequency bands against white noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Optional
+
+import numpy as np
+
+__all__ = ["noise_floor", "cable_excess", "change_points", "state_variables", "state_regions", "frequency_bands",
+           "locate"]
+
+
+def noise_floor(r: np.ndarray) -> np.ndarray:
+    """White-noise std [N] per column of r (N, m) from first differences."""
+    d = np.diff(r, axis=0)
+    return np.std(d, axis=0) / math.sqrt(2.0)
+
+
+def cable_excess(r: np.ndarray, ratio: float = 1.3) -> list[dict[str, Any]]:
+    """Per cable: RMS, noise floor, their ratio and whether it exceeds ``ratio``."""
+    rms = np.sqrt(np.mean(r ** 2, axis=0))
+    fl = noise_floor(r)
+    return [{"cable": c, "rms": float(rms[c]), "noise": float(fl[c]),
+             "ratio": float(rms[c] / fl[c]) if fl[c] > 0 else float("inf"),
+             "carries_residual": bool(rms[c] > ratio * fl[c])} for c in range(r.shape[1])]
+
+
+def _seg_cost(cs: np.ndarray, cs2: np.ndarray, a: int, b: int) -> float:
+    n = b - a
+    s = cs[b] - cs[a]
+    return float(cs2[b] - cs2[a] - s * s / n)
+
+
+def change_points(t: np.ndarray, r: np.ndarray, window: float = 0.5, max_points: int = 8,
+                  noise: Optional[float] = None) -> list[float]:
+    """Times [s] where the mean of the residual r (N,) changes (binary segmentation on
+    window means, BIC penalty with the window-mean noise variance)."""
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    w = max(1, int(round(window / dt)))
+    nb = r.size // w
+    if nb < 4:
+        return []
+    mb = r[:nb * w].reshape(nb, w).mean(axis=1)
+    tb = t[:nb * w].reshape(nb, w)[:, 0]
+    sig2 = (noise ** 2 / w) if noise is not None else float(np.var(np.diff(mb)) / 2.0)
+    sig2 = max(sig2, 1e-18)
+    pen = 2.0 * math.log(nb) * sig2 * 2.0
+    cs = np.r_[0.0, np.cumsum(mb)]
+    cs2 = np.r_[0.0, np.cumsum(mb * mb)]
+    segs = [(0, nb)]
+    cps: list[int] = []
+    while len(cps) < max_points:
+        best = None
+        for (a, b) in segs:
+            if b - a < 4:
+                continue
+            full = _seg_cost(cs, cs2, a, b)
+            for k in range(a + 2, b - 1):
+                gain = full - _seg_cost(cs, cs2, a, k) - _seg_cost(cs, cs2, k, b)
+                if best is None or gain > best[0]:
+                    best = (gain, k, (a, b))
+        if best is None or best[0] < pen:
+            break
+        _, k, (a, b) = best
+        segs.remove((a, b))
+        segs += [(a, k), (k, b)]
+        cps.append(k)
+    return sorted(float(tb[k]) for k in cps)
+
+
+def state_variables(s) -> dict[str, np.ndarray]:
+    """The state variables the residual is checked against, each (N, m) (or (N,))."""
+    out: dict[str, np.ndarray] = {
+        "tension f [N]": s.f0,
+        "wrap angle [rad]": s.wrap,
+        "direction of motion sgn(dx/dt)": np.sign(s.v),
+        "wrap angle x direction of sliding": np.sin(0.5 * s.wrap) * np.sign(s.v_slide),
+        "amplitude A [m]": s.amplitude,
+        "elongation rate dx/dt [m/s]": s.v,
+        "time since start [s]": s.t - s.t[0],
+        "free length (pose) [m]": s.free_length,
+    }
+    if s.temperature is not None:
+        out["temperature [deg C]"] = s.temperature
+    return out
+
+
+def _eta2(v: np.ndarray, r: np.ndarray, bins: int = 10) -> float:
+    if np.ptp(v) <= 1e-12 * max(1.0, float(np.max(np.abs(v)))):
+        return 0.0
+    uniq = np.unique(v)
+    if uniq.size <= bins:
+        idx = np.searchsorted(uniq, v)
+    else:
+        edges = np.quantile(v, np.linspace(0, 1, bins + 1)[1:-1])
+        idx = np.searchsorted(edges, v)
+    tot = float(np.sum((r - r.mean()) ** 2))
+    if tot <= 0:
+        return 0.0
+    between = 0.0
+    for b in np.unique(idx):
+        sel = idx == b
+        between += sel.sum() * (r[sel].mean() - r.mean()) ** 2
+    return float(between / tot)
+
+
+def state_regions(s, r: np.ndarray, cables: list[int], top: int = 3) -> dict[int, list[dict[str, Any]]]:
+    """Per cable in ``cables``: the state variables ranked by eta^2 (share of residual
+    variance their bins explain), the ``top`` ones with the bin of largest mean residual."""
+    vars_ = state_variables(s)
+    out = {}
+    for c in cables:
+        ranked = []
+        for name, a in vars_.items():
+            v = a[:, c] if a.ndim == 2 else a
+            ranked.append({"variable": name, "eta2": _eta2(v, r[:, c])})
+        ranked.sort(key=lambda d: -d["eta2"])
+        out[c] = ranked[:top]
+    return out
+
+
+def frequency_bands(r: np.ndarray, dt: float, edges=(0.0, 0.1, 1.0, 10.0)) -> list[dict[str, Any]]:
+    """Share of the residual's power (N,) per frequency band [Hz] against the share white
+    noise would have (bandwidth / Nyquist): > 1 means the band carries structure."""
+    n = r.size
+    P = np.abs(np.fft.rfft(r - r.mean())) ** 2
+    f = np.fft.rfftfreq(n, dt)
+    tot = float(P.sum()) or 1.0
+    nyq = 0.5 / dt
+    es = list(edges) + [nyq]
+    out = []
+    for a, b in zip(es[:-1], es[1:]):
+        if a >= nyq:
+            break
+        sel = (f >= a) & (f < b)
+        share = float(P[sel].sum() / tot)
+        white = (min(b, nyq) - a) / nyq
+        out.append({"band_hz": [a, min(b, nyq)], "power_share": share, "vs_white": share / white if white else 0.0})
+    return out
+
+
+def locate(s, r: np.ndarray) -> dict[str, Any]:
+    """Everything above for the residual r (N, m): JSON-able."""
+    cab = cable_excess(r)
+    flagged = [d["cable"] for d in cab if d["carries_residual"]]
+    cps = {c: change_points(s.t, r[:, c], noise=cab[c]["noise"]) for c in flagged}
+    regions = state_regions(s, r, flagged)
+    freq = {c: frequency_bands(r[:, c], s.dt) for c in flagged}
+    return {"cables": cab, "flagged": flagged, "change_points": {str(c): v for c, v in cps.items()},
+            "state_regions": {str(c): v for c, v in regions.items()},
+            "frequency": {str(c): v for c, v in freq.items()}}

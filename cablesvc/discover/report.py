@@ -1,0 +1,144 @@
+"""Discovery report: JSON, PNG figures and one HTML page.
+
+:func:`write_report` writes into a directory
+
+* ``discovery.json``: :meth:`Discovery.to_json`;
+* ``rmse.png``: held-out (test) RMSE per cable before and after, with the noise floor;
+* ``term_<name>.png`` per finding: the residual left for the term against the variable
+  that explains it, before (residual) and after (residual minus the term), test ticks;
+* ``overlay.png``: measured force, baseline and augmented model on the most improved cable;
+* ``params.toml``: the augmented parameter file;
+* ``index.html``: the summary sentences, the tables and the figures.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["write_report"]
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _fig_rmse(d, path: Path) -> None:
+    plt = _plt()
+    m = d.residual.shape[1]
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    i = np.arange(m)
+    ax.bar(i - 0.2, d.rmse_before, 0.4, label="baseline")
+    ax.bar(i + 0.2, d.rmse_after, 0.4, label="with discovered terms")
+    ax.plot(i, d.noise, "k_", ms=18, mew=2, label="sensor-noise floor")
+    ax.set_xticks(i)
+    ax.set_xlabel("cable")
+    ax.set_ylabel("held-out RMSE [N]")
+    ax.legend(fontsize=8)
+    ax.set_title("test blocks (never used for fitting or selection)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _fig_term(d, f, path: Path) -> None:
+    plt = _plt()
+    s = d.signals
+    test = d.masks["test"]
+    n = len(f.cables)
+    fig, axes = plt.subplots(1, n, figsize=(3.6 * n + 0.5, 3.2), squeeze=False)
+    from cablesvc.discover.terms import LIBRARY
+    term = LIBRARY.get(f.term)
+    for ax, c in zip(axes[0], f.cables):
+        fit = d.final[c]
+        left = d.residual[:, c] - (fit.pred - fit.contrib[f.term])
+        var = term.evidence(s, c, fit.hyper[f.term]) if term is not None else fit.contrib[f.term]
+        k = np.flatnonzero(test)[:: max(1, test.sum() // 1500)]
+        ax.plot(var[k], left[k], ".", ms=2, alpha=0.5, label="before")
+        ax.plot(var[k], left[k] - fit.contrib[f.term][k], ".", ms=2, alpha=0.5, label="after")
+        ax.set_title(f"cable {c}: r = {f.r[c]:.2f}", fontsize=9)
+        ax.set_xlabel(f.variable, fontsize=7)
+        ax.set_ylabel("residual [N]")
+        ax.legend(fontsize=7, markerscale=4)
+    fig.suptitle(f.label, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _fig_overlay(d, path: Path) -> None:
+    plt = _plt()
+    s = d.signals
+    c = int(np.argmax(d.rmse_before - d.rmse_after))
+    aug = d.signals.f0[:, c] + (d.final[c].pred if c in d.final else 0.0)
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
+    a1.plot(s.t, s.y[:, c], lw=0.6, label="measured")
+    a1.plot(s.t, s.f0[:, c], lw=0.8, label="baseline")
+    a1.plot(s.t, aug, lw=0.8, ls="--", label="augmented")
+    a1.set_ylabel(f"force cable {c} [N]")
+    a1.legend(fontsize=8)
+    a2.plot(s.t, s.y[:, c] - s.f0[:, c], lw=0.5, label="residual before")
+    a2.plot(s.t, s.y[:, c] - aug, lw=0.5, label="residual after")
+    test = d.masks["test"]
+    a2.fill_between(s.t, 0, 1, where=test, transform=a2.get_xaxis_transform(), color="0.9", label="test blocks")
+    a2.set_xlabel("t [s]")
+    a2.set_ylabel("residual [N]")
+    a2.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_report(d, directory: str | os.PathLike) -> dict[str, str]:
+    """Write the report of discovery ``d`` into ``directory``; returns name -> path."""
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    files: dict[str, str] = {}
+    doc = d.to_json()
+    (out / "discovery.json").write_text(json.dumps(doc, indent=1, default=float))
+    files["json"] = str(out / "discovery.json")
+    d.augmented_params().save(out / "params.toml")
+    files["params"] = str(out / "params.toml")
+    _fig_rmse(d, out / "rmse.png")
+    files["rmse"] = str(out / "rmse.png")
+    _fig_overlay(d, out / "overlay.png")
+    files["overlay"] = str(out / "overlay.png")
+    for f in d.findings:
+        p = out / f"term_{f.term}.png"
+        _fig_term(d, f, p)
+        files[f"term_{f.term}"] = str(p)
+    e = html.escape
+    rows = "".join(f"<tr><td>{c}</td><td>{d.rmse_before[c]:.4g}</td><td>{d.rmse_after[c]:.4g}</td>"
+                   f"<td>{d.noise[c]:.3g}</td></tr>" for c in range(d.residual.shape[1]))
+    finds = "".join(
+        f"<h3>{e(f.label)} ({e(f.term)})</h3><p>{e(f.sentence())}</p><pre>{e(json.dumps(f.params, indent=1, default=float))}</pre>"
+        f"<img src='term_{e(f.term)}.png'>" for f in d.findings) or "<p>Nothing significant remains; no term added.</p>"
+    loc = d.location
+    def _regions(c: int) -> str:
+        return ", ".join("%s (eta2 %.2f)" % (r["variable"], r["eta2"]) for r in loc["state_regions"].get(str(c), []))
+
+    locs = "".join("<li>cable %d: change points at %s s; state: %s</li>"
+                   % (c, e(str([round(v, 1) for v in loc["change_points"].get(str(c), [])])), e(_regions(c)))
+                   for c in loc["flagged"])
+    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>cablesvc discovery: {e(d.robot)}</title>
+<style>body{{font-family:sans-serif;max-width:60em;margin:auto}}td,th{{padding:2px 8px;text-align:right}}img{{max-width:100%}}</style>
+</head><body><h1>Discovery report: {e(d.robot)}</h1>
+<p>Baseline: {e(d.baseline.model)} ({e(d.baseline.source)}). Split: {e(str(doc['split']))}.</p>
+<h2>Summary</h2><ul>{''.join(f'<li>{e(x)}</li>' for x in d.summary())}</ul>
+<h2>Where</h2><ul>{locs or '<li>no cable above the noise floor</li>'}</ul>
+<h2>Findings</h2>{finds}
+<h2>Held-out RMSE</h2><table><tr><th>cable</th><th>before [N]</th><th>after [N]</th><th>noise floor [N]</th></tr>{rows}</table>
+<img src="rmse.png"><img src="overlay.png">
+<p>Files: discovery.json, params.toml (baseline with the discovered terms in [identification]).</p>
+</body></html>"""
+    (out / "index.html").write_text(page)
+    files["html"] = str(out / "index.html")
+    return files

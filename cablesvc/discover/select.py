@@ -1,0 +1,295 @@
+"""Fitting terms to a residual and choosing among them.
+
+:func:`fit_terms` fits a set of terms to one cable's residual: the linear parameters by
+bounded linear least squares on the fitting ticks, the nonlinear hyper-parameters by a
+coordinate search over each term's grid (and a bounded scalar search where a term asks for
+it, e.g. dead time). :class:`ForwardSelector` chooses terms by *held-out* improvement: at
+each step it tries every candidate term on every cable, fits on the training blocks and
+scores on the validation blocks; a term counts on a cable when it lowers the validation
+MSE by at least ``min_gain`` (relative) *and* pays for its parameters,
+
+    n_valid log(MSE_new / MSE_old) + penalty * (p_linear + p_nonlinear) log(n_train) < 0,
+
+and the term with the largest total penalised gain over the cables is added on the cables
+where it counts. After each addition, terms that no longer earn their place on a cable are
+dropped (backward pruning). The selector is swappable: anything with a ``select(signals,
+residual, terms, train, valid)`` method returning a :class:`Selection` works.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+import numpy as np
+from scipy.optimize import lsq_linear, minimize_scalar
+
+from cablesvc.discover.terms import Design, Signals, Term
+
+__all__ = ["Fit", "Selection", "SelectOptions", "ForwardSelector", "fit_terms", "predict_terms"]
+
+
+@dataclass
+class Fit:
+    """Terms fitted on one cable: ``terms`` (in order), ``hyper`` and ``params`` per term
+    name, ``contrib`` per term name (N,) [N] and ``pred`` their sum (N,) [N]."""
+
+    terms: list[Term]
+    hyper: dict[str, dict[str, float]]
+    params: dict[str, dict[str, float]]
+    contrib: dict[str, np.ndarray]
+    pred: np.ndarray
+    sse_fit: float
+
+    @property
+    def names(self) -> list[str]:
+        return [t.name for t in self.terms]
+
+    @property
+    def n_params(self) -> int:
+        return sum(len(self.params[t.name]) + t.n_hyper for t in self.terms)
+
+
+class _Cache:
+    def __init__(self) -> None:
+        self.d: dict[tuple, Design] = {}
+
+    def get(self, term: Term, s: Signals, c: int, h: dict[str, float]) -> Design:
+        key = (term.name, c, tuple(sorted((k, round(float(v), 12)) for k, v in h.items())))
+        d = self.d.get(key)
+        if d is None:
+            d = term.design(s, c, h)
+            self.d[key] = d
+        return d
+
+
+def _bounded_lstsq(X: np.ndarray, y: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    if X.shape[1] == 0:
+        return np.zeros(0)
+    sc = np.sqrt(np.sum(X * X, axis=0))
+    sc[sc == 0] = 1.0
+    Xs = X / sc
+    p, *_ = np.linalg.lstsq(Xs, y, rcond=None)
+    p = p / sc
+    if np.all(p >= lo - 1e-15) and np.all(p <= hi + 1e-15):
+        return p
+    res = lsq_linear(Xs, y, bounds=(lo * sc, hi * sc), method="bvls")
+    return res.x / sc
+
+
+def _solve(designs: list[Design], r: np.ndarray, mask: np.ndarray) -> tuple[list[np.ndarray], np.ndarray, float]:
+    n = r.shape[0]
+    fixed = np.zeros(n)
+    for d in designs:
+        if d.fixed is not None:
+            fixed = fixed + d.fixed
+    cols = [d.X for d in designs if d.p]
+    if cols:
+        X = np.hstack(cols)
+        lo = np.concatenate([d.lower for d in designs if d.p])
+        hi = np.concatenate([d.upper for d in designs if d.p])
+        p = _bounded_lstsq(X[mask], (r - fixed)[mask], lo, hi)
+        pred = fixed + X @ p
+    else:
+        p = np.zeros(0)
+        pred = fixed
+    out, i = [], 0
+    for d in designs:
+        out.append(p[i:i + d.p])
+        i += d.p
+    e = (r - pred)[mask]
+    return out, pred, float(e @ e)
+
+
+def _assemble(terms, hypers, designs, plist, r, mask) -> Fit:
+    contrib, params = {}, {}
+    for t, d, p in zip(terms, designs, plist):
+        c = np.zeros(r.shape[0]) if d.fixed is None else d.fixed.copy()
+        if d.p:
+            c = c + d.X @ p
+        contrib[t.name] = c
+        params[t.name] = {n: float(v) for n, v in zip(d.names, p)}
+    pred = np.sum(list(contrib.values()), axis=0) if contrib else np.zeros(r.shape[0])
+    e = (r - pred)[mask]
+    return Fit(terms=list(terms), hyper={t.name: dict(h) for t, h in zip(terms, hypers)}, params=params,
+               contrib=contrib, pred=pred, sse_fit=float(e @ e))
+
+
+def fit_terms(s: Signals, c: int, r: np.ndarray, terms: list[Term], mask: np.ndarray,
+              hypers: Optional[list[Optional[dict[str, float]]]] = None, cache: Optional[_Cache] = None,
+              passes: int = 1) -> Fit:
+    """Fit ``terms`` jointly to the residual ``r`` (N,) [N] of cable ``c`` on the ticks of
+    ``mask``. ``hypers``: starting hyper-parameters per term (None: searched on the grid).
+    Every term's hyper-parameters are searched on its grid with the others held, for
+    ``passes`` rounds, then refined by a bounded scalar search where the term asks."""
+    cache = cache or _Cache()
+    hyp: list[dict[str, float]] = []
+    for j, t in enumerate(terms):
+        h = None if hypers is None or j >= len(hypers) else hypers[j]
+        hyp.append(dict(h) if h is not None else dict(t.grid(s)[0]))
+    if not terms:
+        return _assemble([], [], [], [], r, mask)
+
+    def sse_with(j: int, h: dict[str, float]) -> float:
+        ds = [cache.get(t, s, c, h if i == j else hyp[i]) for i, t in enumerate(terms)]
+        return _solve(ds, r, mask)[2]
+
+    todo = [j for j, t in enumerate(terms) if hypers is None or j >= len(hypers) or hypers[j] is None]
+    for _ in range(max(1, passes)):
+        for j in (todo if _ == 0 else range(len(terms))):
+            t = terms[j]
+            g = t.grid(s)
+            if len(g) > 1:
+                scores = [sse_with(j, h) for h in g]
+                k = int(np.argmin(scores))
+                hyp[j] = dict(g[k])
+                if t.refine_hyper is not None:
+                    key = t.refine_hyper
+                    vals = [h[key] for h in g]
+                    lo = vals[k - 1] if k > 0 else t.refine_bounds[0]
+                    hi = vals[k + 1] if k + 1 < len(vals) else t.refine_bounds[1]
+                    if hi > lo:
+                        res = minimize_scalar(lambda v: sse_with(j, {**hyp[j], key: float(v)}), bounds=(lo, hi),
+                                              method="bounded", options={"xatol": 1e-4 * max(hi - lo, 1e-12)})
+                        if res.fun < scores[k]:
+                            hyp[j] = {**hyp[j], key: float(res.x)}
+    ds = [cache.get(t, s, c, h) for t, h in zip(terms, hyp)]
+    plist, _, _ = _solve(ds, r, mask)
+    return _assemble(terms, hyp, ds, plist, r, mask)
+
+
+def predict_terms(s: Signals, c: int, fit: Fit) -> np.ndarray:
+    """The fitted terms' force correction (N,) [N] on (possibly new) signals ``s``."""
+    out = np.zeros(s.n)
+    for t in fit.terms:
+        d = t.design(s, c, fit.hyper[t.name])
+        if d.fixed is not None:
+            out = out + d.fixed
+        if d.p:
+            out = out + d.X @ np.array([fit.params[t.name][n] for n in d.names])
+    return out
+
+
+@dataclass
+class SelectOptions:
+    """``min_gain``: relative drop of the validation MSE a term must bring on a cable;
+    ``penalty``: weight of the parameter penalty (p log n_train); ``max_terms``: most
+    terms per cable; ``prune``: drop terms that stop earning their place; ``min_effect``:
+    the least drop of the validation MSE, in units of the cable's sensor-noise variance,
+    a term must bring (a term must explain at least sqrt(min_effect) x the noise RMS, so
+    second-order imperfections of a large term are not taken for another effect)."""
+
+    min_gain: float = 0.05
+    min_effect: float = 0.5
+    penalty: float = 1.0
+    max_terms: int = 3
+    prune: bool = True
+
+
+@dataclass
+class Step:
+    """One selection step (for the report): the term added, its cables and the validation
+    MSE per cable before and after [N^2], and the scores of every candidate."""
+
+    term: str
+    cables: list[int]
+    mse_before: dict[int, float]
+    mse_after: dict[int, float]
+    candidates: dict[str, float]
+    pruned: list[tuple[int, str]] = field(default_factory=list)
+
+
+@dataclass
+class Selection:
+    """Outcome of a selection: per cable the chosen terms (a :class:`Fit` on the training
+    ticks), the steps taken, and the validation MSE of the baseline per cable."""
+
+    fits: dict[int, Fit]
+    steps: list[Step]
+    baseline_valid_mse: dict[int, float]
+
+    def named(self) -> dict[str, list[int]]:
+        """Term name -> cables it was chosen on (in the order terms were added)."""
+        out: dict[str, list[int]] = {}
+        for st in self.steps:
+            out.setdefault(st.term, [])
+        for c, f in sorted(self.fits.items()):
+            for n in f.names:
+                out.setdefault(n, []).append(c)
+        return {k: sorted(set(v)) for k, v in out.items() if v}
+
+
+class ForwardSelector:
+    """Greedy forward selection on held-out blocks with a parameter penalty (see module)."""
+
+    def __init__(self, options: Optional[SelectOptions] = None):
+        self.options = options or SelectOptions()
+
+    def _accept(self, old: float, new: float, p: int, n_v: int, n_tr: int, var: float = 0.0) -> float:
+        """Penalised gain (> 0 when the term counts), 0 otherwise."""
+        o = self.options
+        if not (old > 0 and new > 0) or new > old * (1.0 - o.min_gain) or old - new < o.min_effect * var:
+            return 0.0
+        crit = n_v * math.log(new / old) + o.penalty * p * math.log(max(n_tr, 2))
+        return -crit if crit < 0 else 0.0
+
+    def select(self, s: Signals, r: np.ndarray, terms: list[Term], train: np.ndarray,
+               valid: np.ndarray, noise: Optional[np.ndarray] = None) -> Selection:
+        """``noise`` (m,) [N]: the sensor-noise std per cable (None: no absolute floor)."""
+        o = self.options
+        m = r.shape[1]
+        var = np.zeros(m) if noise is None else np.asarray(noise, float) ** 2
+        n_v, n_tr = int(valid.sum()), int(train.sum())
+        cache = _Cache()
+        fits = {c: fit_terms(s, c, r[:, c], [], train, cache=cache) for c in range(m)}
+        mse = {c: float(np.mean(r[valid, c] ** 2)) for c in range(m)}
+        base_mse = dict(mse)
+        steps: list[Step] = []
+        for _ in range(o.max_terms * m):
+            best = None
+            cand_scores: dict[str, float] = {}
+            for t in terms:
+                score, sig, new_fits = 0.0, [], {}
+                for c in range(m):
+                    cur = fits[c]
+                    if t.name in cur.names or len(cur.terms) >= o.max_terms or not t.applies(s, c):
+                        continue
+                    f = fit_terms(s, c, r[:, c], cur.terms + [t], train,
+                                  hypers=[cur.hyper[u.name] for u in cur.terms] + [None], cache=cache)
+                    new = float(np.mean((r[valid, c] - f.pred[valid]) ** 2))
+                    g = self._accept(mse[c], new, len(f.params[t.name]) + t.n_hyper, n_v, n_tr, var[c])
+                    if g > 0:
+                        score += g
+                        sig.append(c)
+                        new_fits[c] = (f, new)
+                cand_scores[t.name] = score
+                if score > 0 and (best is None or score > best[0]):
+                    best = (score, t, sig, new_fits)
+            if best is None:
+                break
+            _, t, sig, new_fits = best
+            step = Step(term=t.name, cables=list(sig), mse_before={c: mse[c] for c in sig},
+                        mse_after={c: new_fits[c][1] for c in sig}, candidates=cand_scores)
+            for c in sig:
+                fits[c], mse[c] = new_fits[c]
+            if o.prune:
+                for c in sig:
+                    changed = True
+                    while changed and len(fits[c].terms) > 1:
+                        changed = False
+                        for u in list(fits[c].terms):
+                            if u.name == t.name:
+                                continue
+                            rest = [v for v in fits[c].terms if v.name != u.name]
+                            f = fit_terms(s, c, r[:, c], rest, train,
+                                          hypers=[fits[c].hyper[v.name] for v in rest], cache=cache)
+                            new = float(np.mean((r[valid, c] - f.pred[valid]) ** 2))
+                            # u stays only when it still pays for itself against the rest
+                            if self._accept(new, mse[c], len(fits[c].params[u.name]) + u.n_hyper, n_v, n_tr, var[c]) <= 0:
+                                fits[c], mse[c] = f, new
+                                step.pruned.append((c, u.name))
+                                changed = True
+                                break
+            steps.append(step)
+        return Selection(fits=fits, steps=steps, baseline_valid_mse=base_mse)

@@ -1,0 +1,158 @@
+"""Discovery (issue 6): concealed effects on the digital twin, controls, the truth-blind
+check, the open library, locate, report/CLI and a small bench run."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+from cablesvc.config.params import load_params
+from cablesvc.discover import Term, discover, library
+from cablesvc.discover.locate import change_points, noise_floor
+from cablesvc.discover.terms import _design
+from cablesvc.simulate import TruthConfig, effect_from_spec, simulate_recording
+
+ROBOT = "ipanema3"
+
+
+def _rec(specs, seed=11, duration=20.0, path=None):
+    eff = [effect_from_spec(s, 8) for s in specs]
+    return simulate_recording(ROBOT, "trajectory", path, truth=TruthConfig(effects=eff, noise_std=0.1),
+                              duration=duration, rate=100, seed=seed)
+
+
+# magnitudes: each a few times the 0.1 N noise in the residual on its cables
+SINGLE = [
+    ("pulley:0.002@1,4", "pulley", [1, 4]),
+    ("creep:0.8@2", "creep", [2]),
+    ("temperature:-0.002@0,6", "temperature", [0, 6]),
+    ("viscous:8000@3", "viscous", [3]),
+    ("deadtime:0.25@5", "deadtime", [5]),
+    ("sag:0.5@6", "sag", [6]),
+    ("offset_gain:0.6@2,7", "offset_gain", [2, 7]),
+]
+
+
+@pytest.mark.parametrize("spec,name,cables", SINGLE, ids=[s[1] for s in SINGLE])
+def test_single_effect_named_on_its_cables(spec, name, cables):
+    d = discover(_rec([spec]), ROBOT)
+    assert d.named == [name]
+    assert d.findings[0].cables == cables
+    assert d.reduction(cables) > 0.5
+    assert all(r > 0.6 for r in d.findings[0].r.values())
+
+
+def test_control_adds_nothing_and_says_so():
+    d = discover(_rec([]), ROBOT)
+    assert d.findings == []
+    assert not d.significant
+    assert any("nothing significant" in line for line in d.summary())
+    np.testing.assert_array_equal(d.rmse_before, d.rmse_after)
+    assert d.augmented_params().identification["discovered_terms"] == []
+
+
+def test_pair_both_named():
+    d = discover(_rec(["creep:1.0@1", "viscous:8000@1,5"], seed=4), ROBOT)
+    assert sorted(d.named) == ["creep", "viscous"]
+
+
+def test_truth_metadata_is_not_read(tmp_path):
+    rec = _rec(["deadtime:0.25@2"], path=tmp_path / "r.mcap")
+    assert "truth" in rec.metadata
+    blind = rec.slice(0, None)
+    blind.metadata = {k: v for k, v in rec.metadata.items() if k != "truth"}
+    a = discover(rec, ROBOT).to_json()
+    b = discover(blind, ROBOT).to_json()
+    c = discover(tmp_path / "r.mcap", ROBOT).to_json()
+    for doc in (b, c):
+        assert doc["findings"] == a["findings"]
+        assert doc["rmse_test_after"] == pytest.approx(a["rmse_test_after"])
+
+
+def test_split_has_no_overlap_and_test_untouched():
+    d = discover(_rec(["creep:0.8@2"]), ROBOT)
+    tr, va, te = d.masks["train"], d.masks["valid"], d.masks["test"]
+    assert not np.any(tr & va) and not np.any(tr & te) and not np.any(va & te)
+    assert np.all(tr | va | te)
+    # the reported "after" uses parameters fitted without the test ticks: refitting on
+    # the test ticks themselves can only do better
+    from cablesvc.discover.select import fit_terms
+    f = d.final[2]
+    cheat = fit_terms(d.signals, 2, d.residual[:, 2], f.terms, te, hypers=[f.hyper[t.name] for t in f.terms])
+    cheat_rmse = np.sqrt(np.mean((d.residual[te, 2] - cheat.pred[te]) ** 2))
+    assert cheat_rmse <= d.rmse_after[2] + 1e-12
+
+
+class LateStep(Term):
+    """Test term: a force step of s [N] from t_s on (a loose connector, say)."""
+
+    name = "late_step"
+    label = "force step"
+    equation = "s H(t - t_s)"
+    variable = "time [s]"
+    n_hyper = 1
+
+    def grid(self, s):
+        return [{"t_s": v} for v in np.arange(2.0, float(s.t[-1]), 1.0)]
+
+    def design(self, s, c, h):
+        return _design([(s.t >= h["t_s"]).astype(float)], ("s",), ("N",))
+
+
+def test_library_is_open_and_locate_finds_the_change_point():
+    rec = _rec([])
+    rec.force = rec.force.copy()
+    rec.force[rec.t >= 12.0, 3] += 0.5
+    d = discover(rec, ROBOT, terms=library() + [LateStep()])
+    assert d.named == ["late_step"]
+    assert d.findings[0].cables == [3]
+    assert d.full[3].hyper["late_step"]["t_s"] == pytest.approx(12.0)
+    assert d.location["flagged"] == [3]
+    cps = d.location["change_points"]["3"]
+    assert any(abs(t - 12.0) <= 1.0 for t in cps)
+
+
+def test_noise_floor_and_change_points_on_synthetic():
+    rng = np.random.default_rng(0)
+    t = np.arange(3000) / 100.0
+    r = 0.1 * rng.standard_normal(3000) + np.where(t > 20.0, 0.3, 0.0)
+    assert noise_floor(r[:, None])[0] == pytest.approx(0.1, rel=0.1)
+    cps = change_points(t, r, noise=0.1)
+    assert len(cps) >= 1 and abs(cps[0] - 20.0) <= 0.6
+    assert change_points(t, 0.1 * rng.standard_normal(3000), noise=0.1) == []
+
+
+def test_cli_report_json_and_params(tmp_path):
+    from cablesvc.cli import discover_cmd
+    _rec(["offset_gain:0.8@1"], path=tmp_path / "r.mcap")
+    ap = argparse.ArgumentParser()
+    sub = ap.add_subparsers()
+    discover_cmd.add_parser(sub)
+    a = ap.parse_args(["discover", "--robot", ROBOT, str(tmp_path / "r.mcap"), "--report", str(tmp_path / "rep"),
+                       "--out", str(tmp_path / "p.toml")])
+    assert a.func(a) == 0
+    for f in ("discovery.json", "index.html", "rmse.png", "overlay.png", "term_offset_gain.png", "params.toml"):
+        assert (tmp_path / "rep" / f).stat().st_size > 0
+    doc = json.loads((tmp_path / "rep" / "discovery.json").read_text())
+    assert [f["term"] for f in doc["findings"]] == ["offset_gain"]
+    p = load_params(tmp_path / "p.toml")
+    assert p.identification["discovered_terms"] == ["offset_gain"]
+    assert p.identification["term_offset_gain"]["o"][1] == pytest.approx(0.8, abs=0.15)
+    bad = ap.parse_args(["discover", "--robot", ROBOT, str(tmp_path / "missing.mcap")])
+    assert bad.func(bad) == 1
+
+
+def test_bench_small_run():
+    from cablesvc.bench.discover import run_bench
+    res = run_bench(cases=1, seed=3)
+    for k in ("cases", "single_correct", "single_total", "pair_correct", "pair_total", "control_false",
+              "control_total", "median_rmse_reduction"):
+        assert k in res
+    assert res["cases"] == 3 and res["single_total"] == 1 and res["pair_total"] == 1
+    # every drawn effect is at least twice the noise on its weakest cable
+    for c in res["per_case"]:
+        assert all(v >= 0.2 - 1e-9 for v in c["effect_rms"].values())
+    assert res["control_false"] == 0
