@@ -18,8 +18,8 @@ DESCRIPTION = """\
 Run the live cable-force predictor beside a robot controller.
 
 With no arguments it runs the embedded default: a simulated IPAnema 3 controller sends
-cable lengths, pose and measured forces on an in-process virtual CAN bus; the daemon
-decodes them with robots/ipanema3.dbc, runs the fixed-time kernel every tick, tracks
+cable lengths, pose and measured forces on an in-process virtual CAN FD bus; the daemon
+decodes them with robots/ipanema3-fd.dbc, runs the fixed-time kernel every tick, tracks
 drift alarms, and publishes over Zenoh as a peer listening on tcp/127.0.0.1:7447
 (multicast scouting off), with a live terminal view. `cablesvc listen` in another
 terminal prints what it publishes.
@@ -59,6 +59,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
     g.add_argument("--interface", help="python-can interface (socketcan, virtual, udp_multicast, ...)")
     g.add_argument("--channel", help="python-can channel (can0, ...)")
     g.add_argument("--bitrate", type=int)
+    g.add_argument("--fd", action="store_true", default=None,
+                   help="CAN FD frames (default DBC robots/<robot>-fd.dbc): a tick in 2 frames, needed for 1 kHz "
+                        "(the embedded sim uses FD unless the config file says fd = false)")
     g.add_argument("--dbc", help="DBC file (default robots/<robot>.dbc)")
     g.add_argument("--deadline", type=float, help="CAN: seconds a tick may wait for its frames (default 0.005)")
     g.add_argument("--host", help="Modbus TCP host (default 127.0.0.1)")
@@ -122,11 +125,11 @@ def source_config(args, cfg: dict[str, Any], robot_name: str) -> dict[str, Any]:
     flags = {"interface": args.interface, "channel": args.channel, "bitrate": args.bitrate, "dbc": args.dbc,
              "deadline_s": args.deadline, "host": args.host, "port": args.port, "unit": args.unit,
              "register_map": args.register_map, "rate_hz": args.poll_rate, "path": args.replay,
-             "speed": args.speed}
+             "speed": args.speed, "fd": args.fd}
     if args.loop:
         flags["loop"] = True
-    allowed = {"can": {"interface", "channel", "bitrate", "dbc", "deadline_s"},
-               "sim": {"interface", "channel", "dbc", "deadline_s"},
+    allowed = {"can": {"interface", "channel", "bitrate", "dbc", "deadline_s", "fd"},
+               "sim": {"interface", "channel", "dbc", "deadline_s", "fd"},
                "modbus": {"host", "port", "unit", "register_map", "rate_hz"},
                "replay": {"path", "speed", "loop"}}[kind]
     for k, v in flags.items():
@@ -165,11 +168,13 @@ def cmd_run(args) -> int:
         channel = src.get("channel") or f"cablesvc-sim-{os.getpid()}"
         bus = {"interface": src.get("interface") or "virtual", "channel": channel}
         # 20 s of twin motion, played forwards and backwards without end
+        fd = src.get("fd", True) is not False          # 1 kHz needs the FD layout (docs/sources.md)
+        src["fd"] = fd
         controller = CanController(robot, bus, dbc=src.get("dbc"), scenario=args.scenario or "trajectory",
-                                   rate=args.rate or 1000.0, seed=args.seed, duration=20.0)
+                                   rate=args.rate or 1000.0, seed=args.seed, duration=20.0, fd=fd)
         # the controller thread shares the interpreter: allow it to be held off by the GIL mid-tick
         src = {"kind": "can", "interface": bus["interface"], "channel": channel, "deadline_s": 0.05,
-               **{k: v for k, v in src.items() if k in ("dbc", "deadline_s")}}
+               **{k: v for k, v in src.items() if k in ("dbc", "deadline_s", "fd")}}
     elif args.scenario or args.rate:
         print("cablesvc run: --scenario and --rate apply to --source sim only", file=sys.stderr)
         return 2
