@@ -155,10 +155,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--list", action="store_true", help="list scenarios and effects")
     s.set_defaults(func=cmd_simulate)
 
-    from cablesvc.cli import discover_cmd, identify_cmd, listen_cmd
+    from cablesvc.cli import beam_cmd, discover_cmd, identify_cmd, listen_cmd
     listen_cmd.add_parser(sub)
     identify_cmd.add_parser(sub)
     discover_cmd.add_parser(sub)
+    beam_cmd.add_parser(sub)
 
     rb = sub.add_parser("robots", help="list or check robot definition files")
     rb.add_argument("action", choices=["list", "check"])
@@ -180,8 +181,9 @@ def build_parser() -> argparse.ArgumentParser:
     bk.set_defaults(func=cmd_bench_kernel)
     from cablesvc.bench import e2e
     e2e.add_parser(bsub)
-    from cablesvc.bench import alarms, boucwen, cable_experiment, can_codec, discover
+    from cablesvc.bench import alarms, beam, boucwen, cable_experiment, can_codec, discover
     alarms.add_parser(bsub)
+    beam.add_parser(bsub)
     discover.add_parser(bsub)
     boucwen.add_parser(bsub)
     cable_experiment.add_parser(bsub)
