@@ -198,6 +198,7 @@ def run_e2e_bench(rate: float = 1000.0, seconds: float = 60.0, *, robot: str = "
         try:
             lst = Listener(robot, make_config(listen=(), connect=(f"tcp/127.0.0.1:{zport}",)), on_forces=col)
             _wait_alive(lst, robot, 60.0, daemon)
+            time.sleep(1.0)                               # let the daemon learn of our subscription
             say("starting the controller", 0.0)
             ctl = subprocess.Popen([sys.executable, "-m", "cablesvc.sources.controller", "--transport", "can",
                                     "--robot", robot, "--rate", str(rate), "--seconds", str(seconds),
@@ -235,6 +236,7 @@ def run_e2e_bench(rate: float = 1000.0, seconds: float = 60.0, *, robot: str = "
     result.update(ticks=sent, received=len(col.seqs), missed=sent - len(col.seqs),
                   controller_overruns=summary.get("overruns"), **_percentiles(col.lat),
                   daemon_input=status.get("input"), daemon_latency_us=status.get("latency_us"),
+                  daemon_published=status.get("published"), daemon_skipped=status.get("skipped_no_subscriber"),
                   shutdown_s=round(shutdown_s, 3))
     return result
 

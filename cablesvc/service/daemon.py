@@ -67,6 +67,7 @@ class DaemonOptions:
     exit_when_finished: bool = True              # replay: stop at the end of the file
     record_queue: int = 100_000                  # ticks the recorder may lag behind
     wait_subscriber_s: float = 0.0               # before reading the source, wait this long for a subscriber
+    direct: bool = True                          # process ticks on the source's receive thread (no hand-off)
 
 
 def default_snapshot_path(robot: str) -> Path:
@@ -248,7 +249,8 @@ class Daemon:
         self.hist = HdrHistogram(1, 60_000_000, 3)          # microseconds, input stamp -> published
         self.problems: deque = deque(maxlen=200)           # recent rejected inputs (for status)
         self.restored_from: str | None = None
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()              # guards the view copy
+        self._state_lock = threading.Lock()        # kernel + alarms: the tick vs snapshots / idle alarms
         self._view_copy: dict[str, Any] | None = None
         self._view_at = 0.0
         self._last_snapshot = time.monotonic()
@@ -443,8 +445,18 @@ class Daemon:
             if p.get("action") == "raise":
                 self.stats.alarms_raised += 1
 
+    def _step_locked(self, tick) -> None:
+        with self._state_lock:
+            self.step(tick)
+
     def run(self, stop: threading.Event, *, max_ticks: int | None = None) -> int:
-        """Run until ``stop`` is set (or the replay ends, or ``max_ticks``). Returns 0."""
+        """Run until ``stop`` is set (or the replay ends, or ``max_ticks``). Returns 0.
+
+        Sources with a receive thread (CAN, Modbus) hand each tick straight to
+        :meth:`step` on that thread (``set_sink``: no queue, no hand-off); this thread then
+        only does the periodic work (input watch, problems, snapshots) under the same lock.
+        Other sources (replay) are read here.
+        """
         src = self.source
         last_idle = 0.0
         if self.opt.wait_subscriber_s > 0 and hasattr(self.publisher, "subscribed"):
@@ -453,22 +465,36 @@ class Daemon:
                 stop.wait(0.02)
             if not self.publisher.subscribed("forces"):
                 log.warning("no subscriber after %.1f s; starting anyway", self.opt.wait_subscriber_s)
-        while not stop.is_set():
-            tick = src.recv(timeout=0.05)
-            if tick is not None:
-                self.step(tick)
-            for p in src.problems():
-                self.problems.append(p)
-            now = time.monotonic()
-            if tick is None or now - last_idle > 0.01:
-                self._idle()
-                last_idle = now
-            if self.snapshot_path is not None and now - self._last_snapshot > self.opt.snapshot_interval_s:
-                self.snapshot()
-            if tick is None and src.finished and self.opt.exit_when_finished:
-                break
-            if max_ticks is not None and self.stats.ticks >= max_ticks:
-                break
+        direct = self.opt.direct and hasattr(src, "set_sink")
+        if direct:
+            src.set_sink(self._step_locked)
+        try:
+            while not stop.is_set():
+                if direct:
+                    tick = None
+                    stop.wait(0.01)
+                else:
+                    tick = src.recv(timeout=0.05)
+                    if tick is not None:
+                        with self._state_lock:
+                            self.step(tick)
+                for p in src.problems():
+                    self.problems.append(p)
+                now = time.monotonic()
+                if tick is None or now - last_idle > 0.01:
+                    with self._state_lock:
+                        self._idle()
+                    last_idle = now
+                if self.snapshot_path is not None and now - self._last_snapshot > self.opt.snapshot_interval_s:
+                    with self._state_lock:
+                        self.snapshot()
+                if not direct and tick is None and src.finished and self.opt.exit_when_finished:
+                    break
+                if max_ticks is not None and self.stats.ticks >= max_ticks:
+                    break
+        finally:
+            if direct:
+                src.set_sink(None)
         return 0
 
     # -- shutdown -------------------------------------------------------------------------
@@ -489,7 +515,8 @@ class Daemon:
             self.source.close()
         except Exception as e:  # noqa: BLE001
             log.error("closing the source failed: %s", e)
-        self.snapshot()
+        with self._state_lock:
+            self.snapshot()
         self._close_outputs()
 
 

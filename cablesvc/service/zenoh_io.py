@@ -71,6 +71,11 @@ def make_config(config_file: str | None = None, *, mode: str = _UNSET, listen: I
         cfg.insert_json5("connect/endpoints", json.dumps(_endpoints(connect)))
     if multicast_scouting is not _UNSET:
         cfg.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
+    if config_file is None:
+        # Forces go out at data-high priority, dropped under congestion. Zenoh's default
+        # transmit queue for that priority is 2 batches: a subscriber descheduled for a few
+        # milliseconds at 1 kHz overflows it. 16 (the maximum) rides out such stalls.
+        cfg.insert_json5("transport/link/tx/queue/size/data_high", "16")
     return cfg
 
 

@@ -488,10 +488,29 @@ class ThreadedSource(Source):
         self._queue: queue.Queue[TickInput] = queue.Queue(maxsize=self.queue_size)
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
+        self._sink: Optional[Any] = None
+
+    def set_sink(self, sink: Optional[Any]) -> None:
+        """Hand every valid tick to ``sink(tick)`` on the receive thread itself instead of
+        queueing it for :meth:`recv` (None: back to the queue).
+
+        This saves one thread hand-off per tick (a lock, a wake-up and a GIL transfer: tens
+        of microseconds, milliseconds on a loaded machine), which is what the live daemon
+        wants. The sink must be quick and must not raise; an exception it raises is
+        reported as ``sink_error`` and the tick counts as delivered.
+        """
+        self._sink = sink
 
     def _deliver(self, tick: TickInput) -> None:
-        """Validate and queue a tick (receive thread)."""
+        """Validate and queue a tick, or hand it to the sink (receive thread)."""
         if not self._admit(tick):
+            return
+        sink = self._sink
+        if sink is not None:
+            try:
+                sink(tick)
+            except Exception as exc:  # noqa: BLE001 - the receive thread must survive
+                self._report("sink_error", f"tick seq {tick.seq}: the consumer failed: {exc!r}")
             return
         while True:
             try:
