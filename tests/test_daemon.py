@@ -223,3 +223,48 @@ def test_can_controller_in_another_process_to_subscriber(tmp_path: Path):
     for k in range(out.n_ticks):                        # received = sent, within the DBC resolution (10 nm)
         np.testing.assert_allclose(out.motor_length[k], sent.motor_length[idx[int(out.seq[k])]], rtol=0, atol=1e-8)
     assert _assert_matches_offline(forces, _offline_forces(out)) >= 150
+
+
+def test_bad_ticks_in_a_replay_are_rejected_counted_alarmed_and_the_rest_published(tmp_path: Path):
+    """A CSV with a NaN length, a tick going back in time and a duplicate seq: each is
+    rejected with its reason, counted in status, raises input_fault; every good tick still
+    produces exactly one forces message."""
+    from cablesvc.recording import read_recording as rr
+
+    rec = simulate_recording("ipanema3", "hold-sine", None, duration=1.0, rate=200.0, seed=2)
+    good = tmp_path / "good.csv"
+    write_recording(good, rec)
+    lines = good.read_text().splitlines()
+    hdr = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
+    cols = lines[hdr].split(",")
+    rows = lines[hdr + 1:]
+    ml = cols.index(next(c for c in cols if c.startswith("motor_length") or c.startswith("l0") or c == "l1"))
+    bad_rows = list(rows)
+    r = bad_rows[50].split(",")
+    r[ml] = "nan"
+    bad_rows[50] = ",".join(r)                          # NaN motor length
+    bad_rows.insert(101, bad_rows[99])                  # time going backwards + duplicate seq
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join(lines[: hdr + 1] + bad_rows) + "\n")
+    zport = free_tcp_port()
+    from cablesvc.service.zenoh_io import Listener, make_config
+    got, alarms = [], []
+    lst = Listener("ipanema3", make_config(listen=(f"tcp/127.0.0.1:{zport}",)),
+                   on_forces=lambda p, ns: got.append(p["seq"]), on_alarm=lambda p, ns: alarms.append(p))
+    try:
+        d = _daemon(["--source", "replay", "--replay", str(bad), "--speed", "1", "--wait-subscriber", "20",
+                     "--connect", f"tcp/127.0.0.1:{zport}", "--listen", f"tcp/127.0.0.1:{free_tcp_port()}"],
+                    free_tcp_port(), tmp_path)
+        _, err = d.communicate(timeout=60)
+        time.sleep(0.5)
+    finally:
+        lst.close()
+    assert d.returncode == 0, err
+    line = next(x for x in err.splitlines() if "stopped in" in x)
+    counters = json.loads(line.split("; input ")[1].split("; latency")[0])
+    assert sum(counters["rejected"].values()) == 2, counters
+    assert counters["accepted"] == rec.n_ticks - 1
+    assert sorted(got) == sorted(set(got)) and len(got) == rec.n_ticks - 1   # one message per accepted tick
+    assert 50 not in got
+    assert any(a["code"] == "input_fault" and a["action"] == "raise" for a in alarms), alarms
+    assert "input rejected" in err

@@ -35,6 +35,8 @@ ALARM_CODES: dict[str, tuple[str, str]] = {
     "input_stale": ("warning", "no input tick for longer than input.stale_s"),
     "input_lost": ("error", "no input tick for longer than input.lost_s"),
     "amplitude_range": ("info", "elongation amplitude outside the range the cable model was identified on"),
+    "input_fault": ("warning", "the source rejected input (bad frame or value, missing frames, time or seq "
+                               "going backwards, ...); cleared after input_fault_clear_s without rejections"),
 }
 SEVERITIES = ("info", "warning", "error")
 ACTIONS = ("raise", "clear")

@@ -68,6 +68,7 @@ class DaemonOptions:
     record_queue: int = 100_000                  # ticks the recorder may lag behind
     wait_subscriber_s: float = 0.0               # before reading the source, wait this long for a subscriber
     direct: bool = True                          # process ticks on the source's receive thread (no hand-off)
+    input_fault_clear_s: float = 5.0             # input_fault clears after this long without a rejection
 
 
 def default_snapshot_path(robot: str) -> Path:
@@ -249,6 +250,9 @@ class Daemon:
         self.hist = HdrHistogram(1, 60_000_000, 3)          # microseconds, input stamp -> published
         self.problems: deque = deque(maxlen=200)           # recent rejected inputs (for status)
         self.restored_from: str | None = None
+        self._fault_alarm = None                   # the raised input_fault alarm, if any
+        self._fault_last = 0.0
+        self._fault_count = 0
         self._lock = threading.Lock()              # guards the view copy
         self._state_lock = threading.Lock()        # kernel + alarms: the tick vs snapshots / idle alarms
         self._view_copy: dict[str, Any] | None = None
@@ -362,7 +366,8 @@ class Daemon:
             "model": {"name": self.params.model, "params_file": self.params.source,
                       "fingerprint": self.fingerprint, "params": _jsonable(self.params.params),
                       "identification": _jsonable(self.params.identification)},
-            "alarms_active": [e.payload() for e in self.alarms.active()],
+            "alarms_active": [e.payload() for e in self.alarms.active()]
+                             + ([self._fault_alarm.payload()] if self._fault_alarm is not None else []),
             "snapshot": {"path": str(self.snapshot_path) if self.snapshot_path else None,
                          "restored_from": self.restored_from, "error": self.snapshot_error},
             "last": {"seq": s.last_seq, "t": s.last_t},
@@ -428,22 +433,53 @@ class Daemon:
             with self._lock:
                 self._view_copy = v
 
+    def _input_problems(self, problems) -> None:
+        """Keep the source's problems for status and raise / clear the ``input_fault`` alarm."""
+        from cablesvc.alarms import AlarmEvent
+
+        now = time.monotonic()
+        t = self.stats.last_t if self.stats.last_t is not None else 0.0
+        for p in problems:
+            self.problems.append(p)
+            if getattr(p, "kind", "rejected") != "rejected":
+                log.info("input event %s: %s", p.reason, p.message)
+                continue
+            log.warning("input rejected (%s): %s", p.reason, p.message)
+            self._fault_last = now
+            self._fault_count += 1
+            if self._fault_alarm is None:
+                self._fault_alarm = AlarmEvent(
+                    action="raise", code="input_fault", cable=None, severity="warning", t=t, since=t,
+                    seq=self.stats.last_seq, message=f"input rejected ({p.reason}): {p.message}")
+                self._emit(self._fault_alarm)
+        if self._fault_alarm is not None and now - self._fault_last > self.opt.input_fault_clear_s:
+            raised = self._fault_alarm
+            self._fault_alarm = None
+            self._emit(AlarmEvent(
+                action="clear", code="input_fault", cable=None, severity="info", t=t, since=raised.since,
+                seq=self.stats.last_seq,
+                message=f"no input rejected for {self.opt.input_fault_clear_s:g} s "
+                        f"({self._fault_count} rejected while raised)"))
+            self._fault_count = 0
+
+    def _emit(self, ev) -> None:
+        p = ev.payload()
+        try:
+            self.publisher.publish_alarm(p)
+        except Exception as e:  # noqa: BLE001
+            self.stats.publish_errors += 1
+            log.error("publishing an alarm failed: %s", e)
+        if p.get("action") == "raise":
+            self.stats.alarms_raised += 1
+
     def _problem(self, reason: str, message: str) -> None:
         from cablesvc.sources.base import Problem
         self.problems.append(Problem(time.time(), reason, message))
         log.warning("%s: %s", reason, message)
 
     def _idle(self) -> None:
-        events = self.alarms.on_idle(time.monotonic())
-        for ev in events:
-            p = ev.payload()
-            try:
-                self.publisher.publish_alarm(p)
-            except Exception as e:  # noqa: BLE001
-                self.stats.publish_errors += 1
-                self._problem("publish_error", f"publishing an alarm failed: {e}")
-            if p.get("action") == "raise":
-                self.stats.alarms_raised += 1
+        for ev in self.alarms.on_idle(time.monotonic()):
+            self._emit(ev)
 
     def _step_locked(self, tick) -> None:
         with self._state_lock:
@@ -478,8 +514,7 @@ class Daemon:
                     if tick is not None:
                         with self._state_lock:
                             self.step(tick)
-                for p in src.problems():
-                    self.problems.append(p)
+                self._input_problems(src.problems())
                 now = time.monotonic()
                 if tick is None or now - last_idle > 0.01:
                     with self._state_lock:

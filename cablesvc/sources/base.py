@@ -90,12 +90,14 @@ class Problem:
     ``time_backwards``, ``duplicate_seq``, ``seq_backwards``, ``missing_frames``,
     ``bad_frame``, ``late_frame``, ``modbus_error``, ``torn_read``, ``recording_error``,
     ``queue_overflow``; events: ``disconnected``, ``reconnected``, ``resync``,
-    ``truncated``, ``robot_mismatch``); ``message``: what and where, in words.
+    ``truncated``, ``robot_mismatch``); ``message``: what and where, in words; ``kind``:
+    ``"rejected"`` (an input was refused) or ``"event"`` (something happened to the link).
     """
 
     wall_time: float
     reason: str
     message: str
+    kind: str = "rejected"
 
 
 @dataclass(slots=True)
@@ -463,7 +465,8 @@ class Source(ABC):
             if len(self._problems) >= PROBLEM_BUFFER:
                 self._problems.popleft()
                 self.counters.problems_dropped += 1
-            self._problems.append(Problem(time.time(), reason, f"{self.label}: {message}"))
+            self._problems.append(Problem(time.time(), reason, f"{self.label}: {message}",
+                                          "event" if kind == "event" else "rejected"))
 
     def _admit(self, tick: TickInput) -> bool:
         """Validate ``tick``; report and return False when it is rejected."""
