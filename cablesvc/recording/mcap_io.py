@@ -50,6 +50,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 from .. import __version__
+from ..jsonable import jsonable
 from .format import (
     FORMAT_VERSION,
     INPUT_JSON_SCHEMA,
@@ -102,29 +103,11 @@ def _float_list(x: Any, name: str, n: Optional[int] = None) -> list:
     return lst
 
 
-def _jsonable(obj: Any) -> Any:
-    """Slow path of payload encoding: numpy types to Python, non-finite floats to None."""
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        f = float(obj)
-        return f if math.isfinite(f) else None
-    return obj
-
-
 def _encode_payload(payload: dict) -> bytes:
     try:
         return _ENCODER.encode(payload).encode()
     except (TypeError, ValueError):
-        return _ENCODER.encode(_jsonable(payload)).encode()
+        return _ENCODER.encode(jsonable(payload)).encode()
 
 
 def _log_time(t: float) -> int:

@@ -39,6 +39,7 @@ import numpy as np
 
 from cablesvc import __version__
 from cablesvc.config.params import ModelParams
+from cablesvc.jsonable import jsonable
 from cablesvc.config.robot import Robot
 from cablesvc.kernel import Predictor
 
@@ -364,8 +365,8 @@ class Daemon:
             "recent_problems": [{"wall_time": p.wall_time, "reason": p.reason, "message": p.message}
                                 for p in list(self.problems)[-10:]],
             "model": {"name": self.params.model, "params_file": self.params.source,
-                      "fingerprint": self.fingerprint, "params": _jsonable(self.params.params),
-                      "identification": _jsonable(self.params.identification)},
+                      "fingerprint": self.fingerprint, "params": jsonable(self.params.params),
+                      "identification": jsonable(self.params.identification)},
             "alarms_active": [e.payload() for e in self.alarms.active()]
                              + ([self._fault_alarm.payload()] if self._fault_alarm is not None else []),
             "snapshot": {"path": str(self.snapshot_path) if self.snapshot_path else None,
@@ -553,18 +554,3 @@ class Daemon:
         with self._state_lock:
             self.snapshot()
         self._close_outputs()
-
-
-def _jsonable(v: Any) -> Any:
-    if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, np.ndarray):
-        return _jsonable(v.tolist())
-    if isinstance(v, (np.floating, float)):
-        f = float(v)
-        return f if np.isfinite(f) else None
-    if isinstance(v, (np.integer,)):
-        return int(v)
-    return v

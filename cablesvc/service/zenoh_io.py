@@ -25,7 +25,6 @@ Written against eclipse-zenoh 1.x (the Python API of 1.0 and later: ``zenoh.open
 from __future__ import annotations
 
 import json
-import math
 import threading
 import time
 from collections import deque
@@ -33,6 +32,7 @@ from typing import Any, Callable, Iterable, NamedTuple
 
 import zenoh
 
+from cablesvc.jsonable import jsonable
 from cablesvc.service.messages import ENCODINGS, JSON_ENCODING, decode, encode
 
 __all__ = ["DEFAULT_LISTEN", "Keys", "Listener", "Publisher", "Received", "keys", "make_config"]
@@ -113,19 +113,6 @@ def _robot_of(key: str) -> str:
     return parts[1] if len(parts) >= 3 else str(key)
 
 
-def _jsonable(v: Any) -> Any:
-    """Status answers: numpy values to Python, non-finite floats to None."""
-    if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
-    if hasattr(v, "tolist") and not isinstance(v, (str, bytes)):
-        return _jsonable(v.tolist())
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    return v
-
-
 class Publisher:
     """The daemon's outputs on Zenoh for one robot.
 
@@ -172,7 +159,7 @@ class Publisher:
         """Status queryable callback (a Zenoh thread)."""
         self.status_queries += 1
         try:
-            body = json.dumps(_jsonable(self._status()), separators=(",", ":"), allow_nan=False)
+            body = json.dumps(jsonable(self._status()), separators=(",", ":"), allow_nan=False)
         except Exception as e:  # noqa: BLE001 - the querier gets the reason
             try:
                 query.reply_err(f"status failed: {e}")

@@ -35,6 +35,7 @@ from typing import Any, Optional, Union
 import numpy as np
 
 from cablesvc.config.robot import Robot, load_robot
+from cablesvc.jsonable import jsonable
 from cablesvc.kinematics import inverse_kinematics
 from cablesvc.recording import Recording, write_recording
 from cablesvc.simulate.physics import SimulationError, TruthConfig, TruthModel, TruthOutput
@@ -91,20 +92,6 @@ class TwinRun:
     elongation: np.ndarray
     wrap_angle: np.ndarray
     free_length: np.ndarray
-
-
-def _jsonable(v: Any) -> Any:
-    if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, np.ndarray):
-        return _jsonable(v.tolist())
-    if isinstance(v, (np.integer,)):
-        return int(v)
-    if isinstance(v, (np.floating, float)):
-        return float(v) if math.isfinite(float(v)) else None
-    return v
 
 
 def _robot(robot: Union[Robot, str, "os.PathLike[str]"]) -> Robot:
@@ -169,8 +156,8 @@ def simulate_twin(robot: Union[Robot, str, "os.PathLike[str]"], scenario: str, *
         "scenario": scenario,
         "seed": str(seed),
         "rate": repr(float(rate)),
-        "scenario_params": json.dumps(_jsonable(plan.params), sort_keys=True),
-        "truth": json.dumps(_jsonable(truth_doc), sort_keys=True),
+        "scenario_params": json.dumps(jsonable(plan.params), sort_keys=True),
+        "truth": json.dumps(jsonable(truth_doc), sort_keys=True),
     }
     N = plan.t.shape[0]
     rec = Recording(robot=rob.name, metadata=metadata, t=plan.t, seq=np.arange(N, dtype=np.int64),
