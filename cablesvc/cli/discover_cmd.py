@@ -1,6 +1,7 @@
 """``cablesvc discover``: find the physics a cable model leaves out of a recording.
 
     cablesvc discover --robot ipanema3 [--params P] rec.mcap [--report DIR] [--json] [--out params.toml]
+    cablesvc discover --boucwen [--data DIR] [--hold] [--json] [--report DIR]
 
 Prints where the residual is (cables, time, state), the terms chosen with their evidence,
 and the held-out RMSE per cable before and after; ``--report`` writes JSON, PNG figures,
@@ -26,6 +27,11 @@ def cmd_discover(args: argparse.Namespace) -> int:
     def fail(msg: str) -> int:
         print(f"cablesvc discover: {msg}", file=sys.stderr)
         return 1
+
+    if args.boucwen:
+        return _cmd_boucwen(args, fail)
+    if not args.recording or not args.robot:
+        return fail("a recording and --robot are needed (or --boucwen)")
 
     try:
         robot = load_robot(args.robot)
@@ -54,11 +60,34 @@ def cmd_discover(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_boucwen(args, fail) -> int:
+    from pathlib import Path
+    from cablesvc.discover.oscillator_case import boucwen_summary, run_boucwen_discovery
+    try:
+        res = run_boucwen_discovery(args.data, hold=args.hold)
+    except (OSError, ValueError, KeyError) as e:
+        return fail(str(e))
+    if args.report:
+        d = Path(args.report)
+        d.mkdir(parents=True, exist_ok=True)
+        (d / "boucwen_discovery.json").write_text(json.dumps(res, indent=1, default=float))
+        (d / "boucwen_discovery.txt").write_text("\n".join(boucwen_summary(res)) + "\n")
+    if args.json:
+        print(json.dumps(res, indent=1, default=float))
+    else:
+        print("\n".join(boucwen_summary(res)))
+    return 0
+
+
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("discover", help="find the physics a model leaves out of a recording",
                               description=__doc__.split("\n\n")[0] + " See docs/discovery.md.")
-    p.add_argument("recording", help="recording with measured forces (.mcap or .csv)")
-    p.add_argument("--robot", required=True, help="robot name or .toml file")
+    p.add_argument("recording", nargs="?", help="recording with measured forces (.mcap or .csv)")
+    p.add_argument("--robot", default=None, help="robot name or .toml file")
+    p.add_argument("--boucwen", action="store_true",
+                   help="run discovery on the Bouc-Wen benchmark oscillator instead (linear start on train.h5)")
+    p.add_argument("--data", default=None, help="--boucwen: benchmark data directory (default ../shared/data/boucwen)")
+    p.add_argument("--hold", action="store_true", help="--boucwen: simulate with a zero-order-hold input")
     p.add_argument("--params", default=None, help="baseline parameter file (default: the robot's nominal model)")
     p.add_argument("--report", default=None, metavar="DIR", help="write JSON, figures, params.toml and index.html")
     p.add_argument("--out", default=None, help="write the augmented parameter file here")
