@@ -14,7 +14,8 @@ from cablesvc.bench.cable_experiment import effective_values, experiment_truth, 
 from cablesvc.cli.identify_cmd import build_parser, run_identify
 from cablesvc.config import load_robot
 from cablesvc.config.params import load_params
-from cablesvc.identify.amplitude_fit import reversal_points, segment_levels
+from cablesvc.identify.amplitude_fit import (damping_regressor, level_trace, reversal_points, segment_levels,
+                                             simulate_amplitude)
 from cablesvc.identify.cable import IdentifyError, cable_data, identify_cable
 from cablesvc.recording import write_recording
 from cablesvc.simulate import TruthConfig, simulate_recording
@@ -138,13 +139,17 @@ def test_cli_errors_exit_1(tmp_path, hold_rec, capsys):
 
 def test_cable_experiment_bench_small():
     """A reduced 002 Sec 4 experiment: one cable, 0.75 mm held out."""
-    res = run_cable_experiment(ROBOT, cables=[0], rate=500.0, frequency=1.0,
+    res = run_cable_experiment(ROBOT, cables=[0], rate=500.0, frequency=1.0, cycles=3,
                                fit_levels=(2.5e-4, 5e-4, 1e-3, 1.5e-3), held_out=7.5e-4)
     json.dumps(res)
     assert res["levels_found_mm"] == pytest.approx([0.25, 0.5, 1.0, 1.5])
     assert res["held_out_rmse_max_n"] <= 0.11
     assert res["max_rel_err"]["K0"] < 0.02 and res["max_rel_err"]["K1"] < 0.02
     assert res["met"]["held_out_rmse"] and res["met"]["determined_params_within_2pct"]
+    # the joint fit: constant truth K2, K3 come out constant, the f_A follow the truth over the range
+    assert res["f_A_degrees_cable0"]["K2"] == 0 and res["f_A_degrees_cable0"]["K3"] == 0
+    assert res["f_A_degrees_cable0"]["K1"] >= 1
+    assert res["f_A_range_max_rel_err"]["K1"] < 0.01 and res["f_A_range_max_rel_err"]["S_a"] < 0.03
     s = res["sensitivity_table1_truth_cable0"]["1.5 mm"]
     assert 0.8 < s["K1"] < 1.1 and s["K3"] < s["K1"] and s["K2"] < s["K1"]
 
@@ -158,3 +163,43 @@ def test_bench_parser_registers_cable_experiment():
     cable_experiment.add_parser(sub)
     args = p.parse_args(["cable-experiment", "--json", "--cycles", "4"])
     assert args.json and args.cycles == 4 and args.func is cable_experiment.cmd_cable_experiment
+
+
+def test_damping_regressor_is_the_kernel_damping():
+    """The trace-based damping regressor equals the kernel model's damping force per unit S_a."""
+    dt = 1e-3
+    t = np.arange(2001) * dt
+    x = np.stack([1e-3 - 5e-4 * np.cos(2 * np.pi * t), 2e-3 - 1e-4 * np.cos(2 * np.pi * t)], axis=1)
+    xc, A, Th = np.array([1e-3, 2e-3]), np.array([5e-4, 1e-4]), np.array([0.5, 0.5])
+    rising = np.array([True, True])
+    base, pref = level_trace(x, dt, xc, A, Th, rising)
+    for alpha in (0.0, 0.3, 1.7):
+        vals = {k: np.zeros((1, 2)) for k in ("K0", "K1", "K2", "K3", "S_a", "alpha")}
+        vals["S_a"][:] = 1.0
+        vals["alpha"][:] = alpha
+        kern = simulate_amplitude(x, dt, vals, xc, A, Th, rising)[:, 0, :]
+        mine = damping_regressor(base, pref, alpha)
+        assert np.allclose(mine, kern, rtol=1e-10, atol=1e-12 * np.abs(kern).max())
+        D, dD = damping_regressor(base, pref, alpha + 0.1, derivative=True)
+        h = 1e-6
+        fd = (damping_regressor(base, pref, alpha + 0.1 + h) - damping_regressor(base, pref, alpha + 0.1 - h)) / (2 * h)
+        assert np.allclose(dD, fd, rtol=1e-5, atol=1e-8 * np.abs(fd).max())
+
+
+def test_joint_fit_selects_forms_and_keeps_held_out_out(hold_rec, amp_truth):
+    from cablesvc.identify.amplitude_fit import fit_amplitude_model
+    d = cable_data(hold_rec, ROBOT, [0, 2])
+    af = fit_amplitude_model(d.t, d.x, d.force, cables=d.cables, hold_out=[1e-3])
+    assert [round(float(np.median(f.amplitude)) * 1e4, 6) for f in af.fits] == [5.0, 15.0]   # 1 mm never fitted
+    assert af.held_out and abs(af.held_out[0] - 1e-3) < 1e-5
+    for c in range(2):
+        fn = af.functions[c]
+        assert fn["K0"].degree == 0 and fn["K2"].degree == 0 and fn["K3"].degree == 0
+        assert af.joint[c]["forms"] == {k: fn[k].degree for k in ("K1", "K2", "K3", "S_a", "alpha")}
+        # the joint fit's standard error of f_A at a level is finite and positive
+        se = fn["K1"].stderr([5e-4, 1.5e-3])
+        assert np.all(np.isfinite(se)) and np.all(se > 0)
+    # K1 at the held-out 1 mm level, predicted by the f_A fitted on 0.5 and 1.5 mm only
+    tv = effective_values(amp_truth, 4, 1e-3)
+    k1 = np.array([af.functions[c]["K1"](1e-3) for c in range(2)])
+    assert np.all(np.abs(k1 - tv["K1"][[0, 2]]) / tv["K1"][[0, 2]] < 0.01)

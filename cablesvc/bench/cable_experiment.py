@@ -3,8 +3,10 @@ amplitude model of 002 Sec 3 identified from it.
 
 Set-up (what 002 Sec 4 describes): the platform is held fixed at the home pose, every
 winch stretches its cable around a 60 N pretension with x = x_pre - A cos(w t) (eq 15), at
-amplitude levels from 0.1 mm to 1.5 mm, 3 periods each at 0.5 Hz, 1 kHz sampling, force
-sensors with 0.1 N Gaussian noise (``hold-sine`` scenario of the twin).
+amplitude levels from 0.1 mm to 1.5 mm, 1 kHz sampling, force sensors with 0.1 N Gaussian
+noise (``hold-sine`` scenario of the twin). Our design: 15 periods per level at 0.5 Hz
+(30 s per level, 6 levels, 1 s ramps, 1 s rest at both ends: a 189 s recording). alpha at
+0.1 mm limits it: its error is about 7 % with 3 periods and 1.4-2.0 % (seeds 0, 1) with 10.
 
 Truth (defined here, per cable i with k_i = EA_i / L_i at home and a = A / 1.5 mm)::
 
@@ -25,12 +27,17 @@ amplitude model (run as the kernel runs it, over the whole recording).
 
 Scores:
 
-* parameter recovery: the identified model's parameters in effect at each amplitude level
-  (its table, read the way the kernel reads it) against the truth's, relative error, target
-  2 %, over all levels and parameters and, separately, over the (level, parameter) pairs
-  the data determine (per-level relative standard error <= 1 %: where it is larger, e.g.
-  K3 at 0.1 mm whose force contribution K3 A^3 is far below the 0.1 N noise, no fit can
-  promise 2 %); per-level raw fits are reported with their standard errors too;
+* parameter recovery, target 2 %, relative error, every parameter (K0, K1, K2, K3, S_a,
+  alpha) and x_center, max over cables:
+  (a) at each fitted level, the identified f_A at the level's measured amplitude AND the
+  identified table as the kernel reads it, against the truth value the recording applied
+  there (the truth's table read the way the kernel reads it);
+  (b) over the tested range, the identified f_A against the truth at its table amplitudes
+  between the smallest and largest fitted level (0.1 .. 1.5 mm, 57 amplitudes) (the held-out 0.75 mm and the amplitudes between levels
+  included: a constant truth K2 must come out constant over the whole range);
+  both (a) and (b) must be within 2 % for "params_within_2pct". The per-level fits (the
+  joint fit's start) are reported with their standard errors, and the (level, parameter)
+  pairs whose per-level relative standard error is <= 1 % separately;
 * held-out force RMSE on the 0.75 mm level against the measured force, target
   <= 1.1 x 0.1 N (10 % above the sensor noise);
 * the sensitivities of Table 1 of 002 (eq 11) for the truth model at each level.
@@ -61,6 +68,8 @@ FIT_LEVELS = (1e-4, 2.5e-4, 5e-4, 1e-3, 1.5e-3)
 HELD_OUT = 7.5e-4
 NOISE = 0.1
 TARGET_REL = 0.02
+#: sine periods per amplitude level (our experiment design, see the module docstring)
+CYCLES = 15
 TARGET_RMSE = 1.1 * NOISE
 #: a parameter counts as determined by one level's data when its standard error is at most this fraction of it
 DETERMINED_RSE = 0.01
@@ -146,7 +155,7 @@ def table1_sensitivity(params: ModelParams, n_cables: int, A: float, *, cable: i
 
 
 def run_cable_experiment(robot: str = "ipanema3", *, seed: int = 0, rate: float = 1000.0, frequency: float = 0.5,
-                         cycles: int = 3, noise: float = NOISE, fit_levels: Sequence[float] = FIT_LEVELS,
+                         cycles: int = CYCLES, noise: float = NOISE, fit_levels: Sequence[float] = FIT_LEVELS,
                          held_out: float = HELD_OUT, cables: Sequence[int] | None = None,
                          progress: Any = None) -> dict[str, Any]:
     """Simulate the experiment, identify, score. Returns a JSON-able dict (see module docstring)."""
@@ -172,6 +181,8 @@ def run_cable_experiment(robot: str = "ipanema3", *, seed: int = 0, rate: float 
     worst_raw: dict[str, float] = {k: 0.0 for k in PER_LEVEL}
     worst_det: dict[str, float] = {k: 0.0 for k in PER_LEVEL}
     undetermined: list[str] = []
+    worst_fn: dict[str, float] = {k: 0.0 for k in PER_LEVEL}
+    worst_table: dict[str, float] = {k: 0.0 for k in PER_LEVEL}
     for lf in fit.fits:
         A = float(np.median(lf.amplitude))
         tv = effective_values(truth, m, A)
@@ -180,10 +191,16 @@ def run_cable_experiment(robot: str = "ipanema3", *, seed: int = 0, rate: float 
         for j, k in enumerate(PER_LEVEL):
             tru = tv[k][data.cables]
             ide = iv[k][data.cables]
+            # the identified f_A at the level's measured amplitude (what the fit claims for the level)
+            fa = np.array([fit.functions[c][k](float(lf.amplitude[c])) for c in range(K)])
             raw = np.array([r.x[j] for r in lf.results])
             se = np.array([r.stderr[j] for r in lf.results])
-            rel = np.abs(ide - tru) / np.abs(tru)
+            rel_tab = np.abs(ide - tru) / np.abs(tru)
+            rel_fn = np.abs(fa - tru) / np.abs(tru)
+            rel = np.maximum(rel_tab, rel_fn)
             rel_raw = np.abs(raw - tru) / np.abs(tru)
+            worst_fn[k] = max(worst_fn[k], float(rel_fn.max()))
+            worst_table[k] = max(worst_table[k], float(rel_tab.max()))
             worst[k] = max(worst[k], float(rel.max()))
             worst_raw[k] = max(worst_raw[k], float(rel_raw.max()))
             # determined by the data at this level: per-level relative standard error <= 1 %
@@ -192,11 +209,28 @@ def run_cable_experiment(robot: str = "ipanema3", *, seed: int = 0, rate: float 
                 worst_det[k] = max(worst_det[k], float(rel[det].max()))
             if not np.all(det):
                 undetermined.append(f"{k}@{A * 1e3:.3g}mm")
-            row[k] = {"truth_cable0": float(tru[0]), "model_cable0": float(ide[0]), "max_rel_err": float(rel.max()),
+            row[k] = {"truth_cable0": float(tru[0]), "model_cable0": float(ide[0]), "f_A_cable0": float(fa[0]),
+                      "max_rel_err": float(rel.max()), "f_A_max_rel_err": float(rel_fn.max()),
+                      "table_max_rel_err": float(rel_tab.max()),
                       "level_fit_cable0": float(raw[0]), "level_fit_stderr_cable0": float(se[0]),
                       "level_fit_max_rel_err": float(rel_raw.max()),
                       "level_fit_max_err_in_stderr": float(np.max(np.abs(raw - tru) / se))}
         rec_rows.append(row)
+    # the amplitude functions over the tested range (the truth's table amplitudes between the
+    # smallest and the largest fitted level: 0.1 .. 1.5 mm in the default run, where its tables are the defining formulas; includes the held-out 0.75 mm
+    # and the amplitudes between levels): identified f_A vs truth, relative error
+    A_tab = np.asarray(truth.tables["amplitudes"], float)
+    lo_fit, hi_fit = float(fit.table_amplitudes[0]), float(fit.table_amplitudes[-1])
+    sel = (A_tab >= lo_fit * (1 - 1e-3)) & (A_tab <= hi_fit * (1 + 1e-3))          # the tested (fitted) range
+    A_tab = A_tab[sel]
+    range_err: dict[str, float] = {}
+    range_at: dict[str, float] = {}
+    for k in PER_LEVEL:
+        tru = np.broadcast_to(np.asarray(truth.tables[k], float), (m, sel.size))[data.cables][:, sel]
+        ide = np.stack([fit.functions[c][k](A_tab) for c in range(K)])
+        rel = np.abs(ide - tru) / np.abs(tru)
+        i = np.unravel_index(int(np.argmax(rel)), rel.shape)
+        range_err[k], range_at[k] = float(rel[i]), float(A_tab[i[1]] * 1e3)
     xc_truth = np.asarray(truth.params["x_center"], float)[data.cables]
     xc_err = float(np.max(np.abs(fit.x_center - xc_truth) / xc_truth))
 
@@ -232,15 +266,20 @@ def run_cable_experiment(robot: str = "ipanema3", *, seed: int = 0, rate: float 
         "fit_levels_mm": [a * 1e3 for a in fit_levels], "held_out_mm": held_out * 1e3,
         "levels_found_mm": [float(np.median(lf.amplitude) * 1e3) for lf in fit.fits],
         "recovery": rec_rows,
-        "max_rel_err": worst, "level_fit_max_rel_err": worst_raw, "x_center_max_rel_err": xc_err,
+        "max_rel_err": worst, "f_A_at_levels_max_rel_err": worst_fn, "table_at_levels_max_rel_err": worst_table,
+        "f_A_range_max_rel_err": range_err, "f_A_range_worst_at_mm": range_at,
+        "level_fit_max_rel_err": worst_raw, "x_center_max_rel_err": xc_err,
         "max_rel_err_determined": worst_det, "undetermined": undetermined,
         "f_A_degrees_cable0": {k: fit.functions[0][k].degree for k in PER_LEVEL},
+        "f_A_degrees_all": [{k: fit.functions[c][k].degree for k in PER_LEVEL} for c in range(K)],
+        "duration_s": float(data.t[-1] - data.t[0]),
         "fit_rmse_n": [float(np.sqrt(np.nanmean((lf.model - lf.force) ** 2))) for lf in fit.fits],
         "held_out_rmse_n": held_rmse, "held_out_rmse_max_n": max(held_rmse) if held_rmse else None,
         "held_out_rmse_incl_first_half_cycle_n": held_rmse_truthfree,
         "sensitivity_table1_truth_cable0": sens,
         "targets": {"param_rel_err": TARGET_REL, "held_out_rmse_n": TARGET_RMSE * noise / NOISE},
-        "met": {"params_within_2pct": bool(max(worst.values()) <= TARGET_REL and xc_err <= TARGET_REL),
+        "met": {"params_within_2pct": bool(max(worst.values()) <= TARGET_REL and max(range_err.values()) <= TARGET_REL
+                                           and xc_err <= TARGET_REL),
                 "determined_params_within_2pct": bool(max(worst_det.values()) <= TARGET_REL
                                                       and xc_err <= TARGET_REL),
                 "held_out_rmse": bool(held_rmse and max(held_rmse) <= TARGET_RMSE * noise / NOISE)},
@@ -257,7 +296,8 @@ def _print_human(res: dict[str, Any]) -> None:
               f"{res['rate_hz']:g} Hz, {res['frequency_hz']:g} Hz sine, {res['cycles']} cycles/level, "
               f"noise {res['noise_std_n']} N; fitted levels {res['levels_found_mm']} mm, held out "
               f"{res['held_out_mm']:g} mm")
-    tb = Table(title="identified amplitude model vs truth: max relative error over cables (and the raw per-level fit)")
+    tb = Table(title="identified amplitude model vs truth at the fitted levels: max relative error over cables of "
+                     "f_A and of the kernel table (in brackets: the per-level fit, the joint fit's start)")
     tb.add_column("A [mm]", justify="right")
     for k in PER_LEVEL:
         tb.add_column(k, justify="right")
@@ -267,9 +307,13 @@ def _print_human(res: dict[str, Any]) -> None:
     con.print(tb)
     con.print(f"x_center max rel. error {res['x_center_max_rel_err'] * 100:.4f} %; "
               f"f_A degrees (cable {res['cables'][0]}): {res['f_A_degrees_cable0']}")
+    con.print("f_A over the tested (fitted) amplitude range vs truth, max rel. error over cables: "
+              + ", ".join(f"{k} {v * 100:.3f} % (at {res['f_A_range_worst_at_mm'][k]:.3g} mm)"
+                          for k, v in res["f_A_range_max_rel_err"].items()))
     ok = res["met"]
     con.print(f"parameters within 2 %: {'[green]yes' if ok['params_within_2pct'] else '[red]NO'}[/] "
-              f"(worst {max(res['max_rel_err'].values()) * 100:.3f} %)")
+              f"(worst at the levels {max(res['max_rel_err'].values()) * 100:.3f} %, over the range "
+              f"{max(res['f_A_range_max_rel_err'].values()) * 100:.3f} %)")
     hr = res["held_out_rmse_max_n"]
     wd = res["max_rel_err_determined"]
     con.print(f"parameters the data determine (per-level relative standard error <= 1 %) within 2 %: "
@@ -289,7 +333,8 @@ def _print_human(res: dict[str, Any]) -> None:
         st.add_row(lvl, *[f"{s[n]:.3g}" for n in names])
     con.print(st)
     sec = res["seconds"]
-    con.print(f"time: simulate {sec['simulate']:.1f} s, identify {sec['identify']:.1f} s, total {sec['total']:.1f} s")
+    con.print(f"recording {res['duration_s']:.0f} s; time: simulate {sec['simulate']:.1f} s, identify "
+              f"{sec['identify']:.1f} s, total {sec['total']:.1f} s")
 
 
 def cmd_cable_experiment(args: argparse.Namespace) -> int:
@@ -320,7 +365,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--robot", default="ipanema3")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--cables", help="comma-separated cable indices (default all)")
-    p.add_argument("--cycles", type=int, default=3, help="sine periods per amplitude level (default 3)")
+    p.add_argument("--cycles", type=int, default=CYCLES, help=f"sine periods per amplitude level (default {CYCLES})")
     p.add_argument("--json", action="store_true", help="one JSON object")
     p.set_defaults(func=cmd_cable_experiment)
     return p

@@ -605,7 +605,7 @@ def identify_cable(recording: Any, robot: Robot | str | os.PathLike, model: str 
             rmse = np.sqrt(np.mean((pred - data.force) ** 2, axis=0))
             params.identification["rmse"] = [float(v) for v in rmse]
             results = [_amplitude_summary(af, c) for c in range(len(data.cables))]
-            return CableFit(model=model, method="per-level least squares (002 Sec 3)", shared=False,
+            return CableFit(model=model, method="per-level fits, then one joint least-squares fit of the amplitude functions (002 Sec 3)", shared=False,
                             cables=data.cables, names=list(results[0]["names"]), units=[],
                             results=results, params=params, data=data, predicted=pred, rmse=rmse, swarm=None,
                             amplitude=af, notes=[
@@ -730,7 +730,7 @@ def amplitude_params(af: Any, rob: Robot, data: CableData, seed: Any) -> ModelPa
     xc = np.zeros(m)
     xc[data.cables] = af.x_center
     A0 = np.full(m, float(grid[0]))
-    ident: dict[str, Any] = {"source": "cablesvc identify", "method": "per-level least squares (002 Sec 3)",
+    ident: dict[str, Any] = {"source": "cablesvc identify", "method": "per-level fits, then one joint least-squares fit of the amplitude functions (002 Sec 3)",
                              "cables": data.cables, "nominal_cables": [c for c in range(m) if c not in data.cables],
                              "amplitude_range": [float(grid[0]), float(grid[-1])],
                              "levels_mm": [float(f.amplitude.mean() * 1e3) for f in af.fits],
@@ -747,5 +747,5 @@ def _amplitude_summary(af: Any, c: int) -> IdentifyResult:
     res = IdentifyResult(last)
     res["levels"] = lt
     res["x_center"] = float(af.x_center[c])
-    res["method"] = "per-level least squares (002 Sec 3)"
+    res["method"] = "per-level fits, then one joint least-squares fit of the amplitude functions (002 Sec 3)"
     return res
