@@ -181,7 +181,8 @@ def build_parser() -> argparse.ArgumentParser:
     bk.set_defaults(func=cmd_bench_kernel)
     from cablesvc.bench import e2e
     e2e.add_parser(bsub)
-    from cablesvc.bench import alarms, beam, boucwen, cable_experiment, can_codec, discover
+    from cablesvc.bench import alarms, beam, boucwen, cable_experiment, can_codec, discover, soak
+    soak.add_parser(bsub)
     alarms.add_parser(bsub)
     beam.add_parser(bsub)
     discover.add_parser(bsub)

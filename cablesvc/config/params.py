@@ -67,7 +67,10 @@ class ModelParams:
         kwargs.update(self.options)
         try:
             if cls is AmplitudeDependent:
-                tabs = {k: np.asarray(v, dtype=float) for k, v in self.tables.items()}
+                try:
+                    tabs = {k: np.asarray(v, dtype=float) for k, v in self.tables.items()}
+                except (TypeError, ValueError) as e:
+                    raise ParamFileError(self.source, [f"tables: must hold numbers ({e})"]) from None
                 if "amplitudes" not in tabs:
                     raise ParamFileError(self.source, ["tables.amplitudes: required for the amplitude model"])
                 return cls((lanes, n_cables), **tabs, **kwargs)
@@ -126,12 +129,21 @@ def load_params(path: str | Path) -> ModelParams:
     """Read and check a parameter file. Raises ParamFileError listing every problem."""
     path = Path(path)
     try:
-        raw = tomllib.loads(path.read_text())
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ParamFileError(path, ["file not found"]) from None
+    except UnicodeDecodeError as e:
+        raise ParamFileError(path, [f"not UTF-8 text (byte {e.start}): a TOML file is UTF-8"]) from None
+    except OSError as e:
+        raise ParamFileError(path, [f"cannot read: {e.strerror or e}"]) from None
     except tomllib.TOMLDecodeError as e:
         raise ParamFileError(path, [f"TOML syntax: {e}"]) from None
     problems = []
+    for section in ("options", "params", "tables", "identification"):
+        if section in raw and not isinstance(raw[section], dict):
+            problems.append(f"{section}: must be a table ([{section}]), got {type(raw[section]).__name__}")
+    if problems:
+        raise ParamFileError(path, problems)
     known = {"format", "model", "robot", "options", "params", "tables", "identification"}
     for k in raw:
         if k not in known:
@@ -139,12 +151,12 @@ def load_params(path: str | Path) -> ModelParams:
     if raw.get("format") != 1:
         problems.append(f"format: must be 1, got {raw.get('format')!r}")
     model = raw.get("model")
-    if model not in MODELS:
+    if not isinstance(model, str) or model not in MODELS:
         problems.append(f"model: must be one of {sorted(MODELS)}, got {model!r}")
     for k in raw.get("options", {}):
         if k not in OPTION_KEYS:
             problems.append(f"options.{k}: unknown option (known: {sorted(OPTION_KEYS)})")
-    if model in MODELS:
+    if isinstance(model, str) and model in MODELS:
         cls = MODELS[model]
         names = set(cls.param_names) if model != "polynomial" else None
         for k, v in raw.get("params", {}).items():
@@ -156,9 +168,17 @@ def load_params(path: str | Path) -> ModelParams:
                     problems.append(f"params.{k}: values must be finite")
             except (TypeError, ValueError):
                 problems.append(f"params.{k}: must be a number or a list of numbers, got {v!r}")
-        for k in raw.get("tables", {}):
+        for k, v in raw.get("tables", {}).items():
             if k != "amplitudes" and k not in TABLE_COLUMNS:
                 problems.append(f"tables.{k}: unknown table (known: amplitudes, {', '.join(TABLE_COLUMNS)})")
+                continue
+            try:
+                a = np.asarray(v, dtype=float)
+                if a.ndim not in (1, 2) or not np.all(np.isfinite(a)):
+                    problems.append(f"tables.{k}: must be a list of finite numbers (one per level) or a list of "
+                                    f"per-cable rows")
+            except (TypeError, ValueError):
+                problems.append(f"tables.{k}: must be a list of numbers, got {v!r}"[:200])
     if problems:
         raise ParamFileError(path, problems)
     return ModelParams(model=model, params=dict(raw.get("params", {})), options=dict(raw.get("options", {})),
