@@ -144,7 +144,28 @@ def source_config(args, cfg: dict[str, Any], robot_name: str) -> dict[str, Any]:
     return src
 
 
+class _StartupInterrupted(Exception):
+    pass
+
+
+def _interrupt_startup(signum, frame):
+    raise _StartupInterrupted(signal.Signals(signum).name)
+
+
 def cmd_run(args) -> int:
+    """Start-up (loading files, precomputing the simulated controller, opening the bus and
+    Zenoh) takes a few seconds; SIGINT or SIGTERM during it ends the process cleanly with
+    status 130 instead of a traceback."""
+    signal.signal(signal.SIGINT, _interrupt_startup)
+    signal.signal(signal.SIGTERM, _interrupt_startup)
+    try:
+        return _cmd_run(args)
+    except _StartupInterrupted as e:
+        print(f"cablesvc run: {e} during start-up; nothing was running yet", file=sys.stderr)
+        return 130
+
+
+def _cmd_run(args) -> int:
     from cablesvc.config import load_robot
     from cablesvc.config.params import load_params
     from cablesvc.service.daemon import Daemon, DaemonOptions, default_snapshot_path
@@ -167,11 +188,11 @@ def cmd_run(args) -> int:
         from cablesvc.sources.controller import CanController
         channel = src.get("channel") or f"cablesvc-sim-{os.getpid()}"
         bus = {"interface": src.get("interface") or "virtual", "channel": channel}
-        # 20 s of twin motion, played forwards and backwards without end
+        # 10 s of twin motion, played forwards and backwards without end
         fd = src.get("fd", True) is not False          # 1 kHz needs the FD layout (docs/sources.md)
         src["fd"] = fd
         controller = CanController(robot, bus, dbc=src.get("dbc"), scenario=args.scenario or "trajectory",
-                                   rate=args.rate or 1000.0, seed=args.seed, duration=20.0, fd=fd)
+                                   rate=args.rate or 1000.0, seed=args.seed, duration=10.0, fd=fd)
         # the controller thread shares the interpreter: allow it to be held off by the GIL mid-tick
         src = {"kind": "can", "interface": bus["interface"], "channel": channel, "deadline_s": 0.05,
                **{k: v for k, v in src.items() if k in ("dbc", "deadline_s", "fd")}}
@@ -202,9 +223,9 @@ def cmd_run(args) -> int:
     def on_signal(signum, frame):
         stop.set()
 
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
     daemon = Daemon(opts)
+    signal.signal(signal.SIGINT, on_signal)          # from here on: a clean shutdown
+    signal.signal(signal.SIGTERM, on_signal)
     log = logging.getLogger("cablesvc.run")
     log.info("cablesvc %s: robot %s, source %s, model %s, zenoh %s", robot.name, robot.name,
              json.dumps(src, default=str), params.model,
