@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from cablesvc.beam.solver import (
-    ROPE_7x7, ROPE_7x19, TABLE4, TABLE6, BeamParams, Loop, Section, SolverOptions, stabilised_loop,
+    ROPE_7x7, ROPE_7x19, TABLE4, TABLE6, Loop, SolverOptions, stabilised_loop,
 )
 
 __all__ = ["CASES", "hardening_ratio", "reproduce"]

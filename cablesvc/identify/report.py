@@ -207,7 +207,7 @@ def write_report(fit: Any, out_dir: str | Path, *, recording: str | None = None,
              f"- data: {d.t.size} ticks, {d.t[-1] - d.t[0]:.1f} s, dt {d.dt * 1e3:.3g} ms; elongation "
              "x = l(pose) - motor_length (inverse kinematics on the recorded pose)",
              f"- method: {fit.method}; run time {fit.seconds:.1f} s",
-             f"- force RMSE per cable [N]: " + ", ".join(f"{c}: {v:.4g}" for c, v in zip(fit.cables, fit.rmse))]
+             "- force RMSE per cable [N]: " + ", ".join(f"{c}: {v:.4g}" for c, v in zip(fit.cables, fit.rmse))]
     if params_file:
         lines.append(f"- parameter file: `{params_file}` (load with `cablesvc run --params {params_file}`)")
     lines += [""]

@@ -223,7 +223,7 @@ def _hold(ctx: ScenarioContext, shape: str, wave: Callable[[np.ndarray], np.ndar
     target_n = None if ctx.duration is None else ctx.ticks(ctx.duration)
 
     def one_pass() -> None:
-        nonlocal current, model_amp
+        nonlocal current
         if n_rest:
             add(np.tile(current, (n_rest, 1)))
         for grp in groups:
