@@ -59,6 +59,56 @@ def test_pair_both_named():
     assert sorted(d.named) == ["creep", "viscous"]
 
 
+def test_offset_on_pulley_cables_is_not_taken_for_a_pulley_gain():
+    # the offset sits on cables with a pulley: the pulley's own gain column must not take it
+    d = discover(_rec(["offset_gain:-0.4@2,3", "pulley:0.002@5"], seed=5), ROBOT)
+    assert sorted(d.named) == ["offset_gain", "pulley"]
+
+
+def test_deadtime_and_pulley_on_one_cable():
+    d = discover(_rec(["deadtime:0.1@4", "pulley:0.0015@4"], seed=6), ROBOT)
+    assert sorted(d.named) == ["deadtime", "pulley"]
+
+
+def _synthetic_signals(n=2000, seed=0):
+    from cablesvc.discover.terms import Signals
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.01
+    x = 1e-3 * np.sin(2 * np.pi * 0.3 * t)[:, None]
+    f0 = 250.0 + 6e4 * x
+    return Signals(t=t, dt=0.01, y=np.zeros((n, 1)), f0=f0, x=x, v=np.gradient(x, t, axis=0),
+                   v_slide=np.cos(2 * np.pi * 0.3 * t)[:, None], wrap=np.full((n, 1), 1.0) + 0.3 * x / 1e-3,
+                   free_length=np.full((n, 1), 1.5), temperature=20 + 0.1 * t, ea=np.array([1e5]),
+                   has_pulley=np.array([True]), amplitude=np.full((n, 1), 1e-3), train=rng.random(n) < 0.5)
+
+
+def test_nuisance_gain_belongs_to_offset_gain():
+    from cablesvc.discover.select import fit_terms, n_fitted, predict_terms
+    s = _synthetic_signals()
+    pul, og = library(["pulley"])[0], library(["offset_gain"])[0]
+    r = 0.3 + 0.002 * s.f0[:, 0]
+    alone = fit_terms(s, 0, r, [pul], s.train)
+    both = fit_terms(s, 0, r, [pul, og], s.train)
+    assert n_fitted(alone, pul) == 4 and n_fitted(both, pul) == 3      # k0 held at 0 next to offset_gain
+    assert both.params["pulley"]["k0"] == 0.0 and both.dropped == {"pulley": ("k0",)}
+    np.testing.assert_allclose(predict_terms(s, 0, both), both.pred)
+    assert abs(both.params["offset_gain"]["o"] - 0.3) < 1e-6
+
+
+def test_deadtime_delays_the_other_terms_inputs():
+    from cablesvc.discover.select import fit_terms, predict_terms
+    s = _synthetic_signals()
+    vis, dtm = library(["viscous"])[0], library(["deadtime"])[0]
+    tau = 0.13
+    sd = s.delayed(tau)
+    np.testing.assert_allclose(sd.x[500:, 0], np.interp(s.t[500:] - tau, s.t, s.x[:, 0]))
+    np.testing.assert_array_equal(sd.wrap, s.wrap)
+    r = (sd.f0 - s.f0)[:, 0] + 50.0 * sd.v[:, 0]          # the viscous force of the delayed elongation
+    f = fit_terms(s, 0, r, [dtm, vis], s.train, hypers=[{"tau": tau}, {}])
+    assert abs(f.params["viscous"]["c_v"] - 50.0) < 1e-6
+    np.testing.assert_allclose(predict_terms(s, 0, f), r, atol=1e-8)
+
+
 def test_truth_metadata_is_not_read(tmp_path):
     rec = _rec(["deadtime:0.25@2"], path=tmp_path / "r.mcap")
     assert "truth" in rec.metadata

@@ -223,7 +223,8 @@ class Discovery:
             "steps": [{"term": st.term, "cables": st.cables,
                        "valid_mse_before": {str(k): v for k, v in st.mse_before.items()},
                        "valid_mse_after": {str(k): v for k, v in st.mse_after.items()},
-                       "candidate_scores": st.candidates, "pruned": [list(p) for p in st.pruned]}
+                       "candidate_scores": st.candidates, "pruned": [list(p) for p in st.pruned],
+                       "swapped": [list(p) for p in getattr(st, "swapped", [])]}
                       for st in self.selection.steps],
             "rmse_test_before": [float(v) for v in self.rmse_before],
             "rmse_test_after": [float(v) for v in self.rmse_after],

@@ -11,8 +11,15 @@ MSE by at least ``min_gain`` (relative) *and* pays for its parameters,
     n_valid log(MSE_new / MSE_old) + penalty * (p_linear + p_nonlinear) log(n_train) < 0,
 
 and the term with the largest total penalised gain over the cables is added on the cables
-where it counts. After each addition, terms that no longer earn their place on a cable are
-dropped (backward pruning). The selector is swappable: anything with a ``select(signals,
+where it counts. A term with a generic gain column (``Term.nuisance``: pulley k0,
+temperature g) must also beat that column alone with its specific ones, and the columns are
+held at 0 when the nuisance's owner (``offset_gain``) is on the same cable. After each
+addition, terms that no longer earn their place on a cable are dropped (backward pruning,
+jointly refitted), each term is tried in place of every unselected one (with
+``offset_gain`` beside it when it carried the gain) and the best penalised replacement is
+kept, and the pruning runs again. A term with ``delays_input`` (dead time) makes the other
+terms on its cable see the delayed elongation and baseline force. The selector is
+swappable: anything with a ``select(signals,
 residual, terms, train, valid)`` method returning a :class:`Selection` works.
 """
 
@@ -41,6 +48,7 @@ class Fit:
     contrib: dict[str, np.ndarray]
     pred: np.ndarray
     sse_fit: float
+    dropped: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     @property
     def names(self) -> list[str]:
@@ -55,13 +63,46 @@ class _Cache:
     def __init__(self) -> None:
         self.d: dict[tuple, Design] = {}
 
-    def get(self, term: Term, s: Signals, c: int, h: dict[str, float]) -> Design:
-        key = (term.name, c, tuple(sorted((k, round(float(v), 12)) for k, v in h.items())))
+    def get(self, term: Term, s: Signals, c: int, h: dict[str, float], strip: bool = False,
+            delay: float = 0.0) -> Design:
+        key = (term.name, c, tuple(sorted((k, round(float(v), 12)) for k, v in h.items())), round(delay, 12))
         d = self.d.get(key)
         if d is None:
-            d = term.design(s, c, h)
+            if delay > 0:
+                sk = ("signals", round(delay, 12))
+                sd = self.d.get(sk)
+                if sd is None:
+                    sd = s.delayed(delay)
+                    self.d[sk] = sd
+                d = term.design(sd, c, h)
+            else:
+                d = term.design(s, c, h)
             self.d[key] = d
+        if strip and term.nuisance and not term.owns_nuisance:
+            d = d.without(term.nuisance)
         return d
+
+
+class _NuisanceOnly(Term):
+    """The generic (nuisance) columns of ``base`` alone: the yardstick its specific columns
+    must beat (a pulley or temperature term must explain more than a plain gain)."""
+
+    def __init__(self, base: Term):
+        self.base = base
+        self.name = base.name + "#nuisance"
+
+    def design(self, s, c, h):
+        return self.base.design(s, c, self.base.grid(s)[0]).only(self.base.nuisance)
+
+
+def _strip(terms: list[Term]) -> bool:
+    return any(t.owns_nuisance for t in terms)
+
+
+def n_fitted(fit: "Fit", t: Term) -> int:
+    """Parameters of ``t`` that were fitted on this cable (linear ones not held at 0, plus
+    the nonlinear ones)."""
+    return len(fit.params[t.name]) - len(fit.dropped.get(t.name, ())) + t.n_hyper
 
 
 def _bounded_lstsq(X: np.ndarray, y: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -103,17 +144,32 @@ def _solve(designs: list[Design], r: np.ndarray, mask: np.ndarray) -> tuple[list
 
 
 def _assemble(terms, hypers, designs, plist, r, mask) -> Fit:
-    contrib, params = {}, {}
+    contrib, params, dropped = {}, {}, {}
     for t, d, p in zip(terms, designs, plist):
         c = np.zeros(r.shape[0]) if d.fixed is None else d.fixed.copy()
         if d.p:
             c = c + d.X @ p
         contrib[t.name] = c
         params[t.name] = {n: float(v) for n, v in zip(d.names, p)}
+        params[t.name].update({n: 0.0 for n in d.dropped})
+        if d.dropped:
+            dropped[t.name] = d.dropped
     pred = np.sum(list(contrib.values()), axis=0) if contrib else np.zeros(r.shape[0])
     e = (r - pred)[mask]
     return Fit(terms=list(terms), hyper={t.name: dict(h) for t, h in zip(terms, hypers)}, params=params,
-               contrib=contrib, pred=pred, sse_fit=float(e @ e))
+               contrib=contrib, pred=pred, sse_fit=float(e @ e), dropped=dropped)
+
+
+def _delay(terms: list[Term], hs: list[dict[str, float]]) -> float:
+    for t, h in zip(terms, hs):
+        if t.delays_input:
+            return float(h.get("tau", 0.0))
+    return 0.0
+
+
+def _designs(terms, hs, s, c, cache, strip) -> list[Design]:
+    tau = _delay(terms, hs)
+    return [cache.get(t, s, c, h, strip, 0.0 if t.delays_input else tau) for t, h in zip(terms, hs)]
 
 
 def fit_terms(s: Signals, c: int, r: np.ndarray, terms: list[Term], mask: np.ndarray,
@@ -124,6 +180,7 @@ def fit_terms(s: Signals, c: int, r: np.ndarray, terms: list[Term], mask: np.nda
     Every term's hyper-parameters are searched on its grid with the others held, for
     ``passes`` rounds, then refined by a bounded scalar search where the term asks."""
     cache = cache or _Cache()
+    strip = _strip(terms)
     hyp: list[dict[str, float]] = []
     for j, t in enumerate(terms):
         h = None if hypers is None or j >= len(hypers) else hypers[j]
@@ -131,9 +188,11 @@ def fit_terms(s: Signals, c: int, r: np.ndarray, terms: list[Term], mask: np.nda
     if not terms:
         return _assemble([], [], [], [], r, mask)
 
+    def designs(hs: list[dict[str, float]]) -> list[Design]:
+        return _designs(terms, hs, s, c, cache, strip)
+
     def sse_with(j: int, h: dict[str, float]) -> float:
-        ds = [cache.get(t, s, c, h if i == j else hyp[i]) for i, t in enumerate(terms)]
-        return _solve(ds, r, mask)[2]
+        return _solve(designs([h if i == j else hyp[i] for i in range(len(terms))]), r, mask)[2]
 
     todo = [j for j, t in enumerate(terms) if hypers is None or j >= len(hypers) or hypers[j] is None]
     for _ in range(max(1, passes)):
@@ -154,7 +213,7 @@ def fit_terms(s: Signals, c: int, r: np.ndarray, terms: list[Term], mask: np.nda
                                               method="bounded", options={"xatol": 1e-4 * max(hi - lo, 1e-12)})
                         if res.fun < scores[k]:
                             hyp[j] = {**hyp[j], key: float(res.x)}
-    ds = [cache.get(t, s, c, h) for t, h in zip(terms, hyp)]
+    ds = designs(hyp)
     plist, _, _ = _solve(ds, r, mask)
     return _assemble(terms, hyp, ds, plist, r, mask)
 
@@ -162,12 +221,14 @@ def fit_terms(s: Signals, c: int, r: np.ndarray, terms: list[Term], mask: np.nda
 def predict_terms(s: Signals, c: int, fit: Fit) -> np.ndarray:
     """The fitted terms' force correction (N,) [N] on (possibly new) signals ``s``."""
     out = np.zeros(s.n)
+    tau = _delay(fit.terms, [fit.hyper[t.name] for t in fit.terms])
+    sd = s.delayed(tau) if tau > 0 else s
     for t in fit.terms:
-        d = t.design(s, c, fit.hyper[t.name])
+        d = t.design(s if t.delays_input else sd, c, fit.hyper[t.name])
         if d.fixed is not None:
             out = out + d.fixed
         if d.p:
-            out = out + d.X @ np.array([fit.params[t.name][n] for n in d.names])
+            out = out + d.X @ np.array([fit.params[t.name].get(n, 0.0) for n in d.names])
     return out
 
 
@@ -185,6 +246,7 @@ class SelectOptions:
     penalty: float = 1.0
     max_terms: int = 3
     prune: bool = True
+    swap: bool = True
 
 
 @dataclass
@@ -198,6 +260,7 @@ class Step:
     mse_after: dict[int, float]
     candidates: dict[str, float]
     pruned: list[tuple[int, str]] = field(default_factory=list)
+    swapped: list[tuple[int, str, str]] = field(default_factory=list)
 
 
 @dataclass
@@ -234,6 +297,80 @@ class ForwardSelector:
         crit = n_v * math.log(new / old) + o.penalty * p * math.log(max(n_tr, 2))
         return -crit if crit < 0 else 0.0
 
+    def _specific(self, s, c, r, cur, t, new, train, valid, cache, n_v, n_tr, var) -> bool:
+        """Whether ``t``'s specific columns beat its generic (nuisance) ones alone: a term
+        with a plain-gain column may only win on a residual its own signature explains."""
+        if not t.nuisance or _strip(cur.terms + [t]):
+            return True
+        nt = _NuisanceOnly(t)
+        f = fit_terms(s, c, r[:, c], cur.terms + [nt], train,
+                      hypers=[cur.hyper[u.name] for u in cur.terms] + [{}], cache=cache)
+        mse_n = float(np.mean((r[valid, c] - f.pred[valid]) ** 2))
+        p_spec = len(t.design(s, c, t.grid(s)[0]).names) - len(t.nuisance) + t.n_hyper
+        return self._accept(mse_n, new, p_spec, n_v, n_tr, var) > 0
+
+    def _mse(self, r, f, valid, c) -> float:
+        return float(np.mean((r[valid, c] - f.pred[valid]) ** 2))
+
+    def _swap(self, s, c, r, fits, mse, terms, train, valid, cache, n_v, n_tr, var) -> list[tuple[str, str]]:
+        """Jointly refit cable ``c`` with each selected term replaced by each unselected
+        one; take the best replacement that lowers the penalised validation error, and
+        repeat (at most twice). Returns the swaps (old, new)."""
+        o = self.options
+        done = []
+        for _ in range(2):
+            cur = fits[c]
+            best = None
+            owner = next((t for t in terms if t.owns_nuisance and t.applies(s, c)), None)
+            for u in cur.terms:
+                rest = [v for v in cur.terms if v.name != u.name]
+                # u is replaced by one unselected term w; when u carries the generic gain and
+                # its owner is absent, also by w together with that owner (the gain u took
+                # goes back to offset_gain, the rest to w)
+                options = [[w] for w in terms if w.name not in cur.names and w.applies(s, c)]
+                if u.nuisance and owner is not None and owner.name not in cur.names and len(cur.terms) < o.max_terms:
+                    options += [[owner, w[0]] for w in options if w[0].name != owner.name]
+                for add in options:
+                    w = add[-1]
+                    f = fit_terms(s, c, r[:, c], rest + add, train,
+                                  hypers=[cur.hyper[v.name] for v in rest] + [None] * len(add), cache=cache)
+                    new = self._mse(r, f, valid, c)
+                    if not (0 < new < mse[c]):
+                        continue
+                    dp = sum(n_fitted(f, a) for a in add) - n_fitted(cur, u)
+                    crit = n_v * math.log(new / mse[c]) + o.penalty * dp * math.log(max(n_tr, 2))
+                    if crit < 0 and (best is None or crit < best[0]):
+                        base = fit_terms(s, c, r[:, c], rest + add[:-1], train,
+                                         hypers=[cur.hyper[v.name] for v in rest] + [None] * (len(add) - 1), cache=cache)
+                        if not self._specific(s, c, r, base, w, new, train, valid, cache, n_v, n_tr, var):
+                            continue
+                        best = (crit, u, "+".join(a.name for a in add), f, new)
+            if best is None:
+                break
+            _, u, w, f, new = best
+            fits[c], mse[c] = f, new
+            done.append((u.name, w))
+        return done
+
+    def _prune(self, s, c, r, fits, mse, train, valid, cache, n_v, n_tr, var, keep: Optional[str] = None):
+        pruned = []
+        changed = True
+        while changed and len(fits[c].terms) >= 1:
+            changed = False
+            for u in list(fits[c].terms):
+                if u.name == keep:
+                    continue
+                rest = [v for v in fits[c].terms if v.name != u.name]
+                f = fit_terms(s, c, r[:, c], rest, train, hypers=[fits[c].hyper[v.name] for v in rest], cache=cache)
+                new = self._mse(r, f, valid, c)
+                # u stays only when it still pays for itself against the rest (jointly refitted)
+                if self._accept(new, mse[c], n_fitted(fits[c], u), n_v, n_tr, var) <= 0:
+                    fits[c], mse[c] = f, new
+                    pruned.append((c, u.name))
+                    changed = True
+                    break
+        return pruned
+
     def select(self, s: Signals, r: np.ndarray, terms: list[Term], train: np.ndarray,
                valid: np.ndarray, noise: Optional[np.ndarray] = None) -> Selection:
         """``noise`` (m,) [N]: the sensor-noise std per cable (None: no absolute floor)."""
@@ -256,10 +393,11 @@ class ForwardSelector:
                     if t.name in cur.names or len(cur.terms) >= o.max_terms or not t.applies(s, c):
                         continue
                     f = fit_terms(s, c, r[:, c], cur.terms + [t], train,
-                                  hypers=[cur.hyper[u.name] for u in cur.terms] + [None], cache=cache)
-                    new = float(np.mean((r[valid, c] - f.pred[valid]) ** 2))
-                    g = self._accept(mse[c], new, len(f.params[t.name]) + t.n_hyper, n_v, n_tr, var[c])
-                    if g > 0:
+                                  hypers=[cur.hyper[u.name] for u in cur.terms] + [None], cache=cache,
+                                  passes=2 if any(u.n_hyper for u in cur.terms) else 1)
+                    new = self._mse(r, f, valid, c)
+                    g = self._accept(mse[c], new, n_fitted(f, t), n_v, n_tr, var[c])
+                    if g > 0 and self._specific(s, c, r, cur, t, new, train, valid, cache, n_v, n_tr, var[c]):
                         score += g
                         sig.append(c)
                         new_fits[c] = (f, new)
@@ -275,21 +413,10 @@ class ForwardSelector:
                 fits[c], mse[c] = new_fits[c]
             if o.prune:
                 for c in sig:
-                    changed = True
-                    while changed and len(fits[c].terms) > 1:
-                        changed = False
-                        for u in list(fits[c].terms):
-                            if u.name == t.name:
-                                continue
-                            rest = [v for v in fits[c].terms if v.name != u.name]
-                            f = fit_terms(s, c, r[:, c], rest, train,
-                                          hypers=[fits[c].hyper[v.name] for v in rest], cache=cache)
-                            new = float(np.mean((r[valid, c] - f.pred[valid]) ** 2))
-                            # u stays only when it still pays for itself against the rest
-                            if self._accept(new, mse[c], len(fits[c].params[u.name]) + u.n_hyper, n_v, n_tr, var[c]) <= 0:
-                                fits[c], mse[c] = f, new
-                                step.pruned.append((c, u.name))
-                                changed = True
-                                break
+                    step.pruned += self._prune(s, c, r, fits, mse, train, valid, cache, n_v, n_tr, var[c], keep=t.name)
+                    if o.swap:
+                        for a, b in self._swap(s, c, r, fits, mse, terms, train, valid, cache, n_v, n_tr, var[c]):
+                            step.swapped.append((c, a, b))
+                        step.pruned += self._prune(s, c, r, fits, mse, train, valid, cache, n_v, n_tr, var[c])
             steps.append(step)
         return Selection(fits=fits, steps=steps, baseline_valid_mse=base_mse)

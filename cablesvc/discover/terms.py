@@ -84,6 +84,25 @@ class Signals:
     def train_mean(self, a: np.ndarray) -> float:
         return float(np.mean(a[self.train]))
 
+    def delayed(self, tau: float) -> "Signals":
+        """These signals with the elongation and what follows from it (x, v, amplitude and
+        the baseline force f0) delayed by ``tau`` [s] (held at the first value before
+        t0 + tau): what the force-stage terms see when the force follows the elongation
+        of tau seconds ago (dead time). Pose-side signals (wrap, v_slide, free length,
+        temperature) are not delayed."""
+        if tau <= 0:
+            return self
+        import copy as _copy
+
+        def sh(a):
+            a2 = a.reshape(a.shape[0], -1)
+            out = np.column_stack([np.interp(self.t - tau, self.t, a2[:, j]) for j in range(a2.shape[1])])
+            return out.reshape(a.shape)
+
+        d = _copy.copy(self)
+        d.f0, d.x, d.v, d.amplitude = sh(self.f0), sh(self.x), sh(self.v), sh(self.amplitude)
+        return d
+
 
 @dataclass
 class Design:
@@ -97,10 +116,29 @@ class Design:
     units: tuple[str, ...]
     lower: np.ndarray
     upper: np.ndarray
+    #: linear parameters left out of the fit (held at 0), e.g. a nuisance gain owned by
+    #: another term on the same cable
+    dropped: tuple[str, ...] = ()
 
     @property
     def p(self) -> int:
         return int(self.X.shape[1])
+
+    def without(self, names: tuple[str, ...]) -> "Design":
+        """This design with the columns ``names`` left out (held at 0)."""
+        keep = [i for i, n in enumerate(self.names) if n not in names]
+        gone = tuple(n for n in self.names if n in names)
+        if not gone:
+            return self
+        return Design(fixed=self.fixed, X=self.X[:, keep], names=tuple(self.names[i] for i in keep),
+                      units=tuple(self.units[i] for i in keep), lower=self.lower[keep], upper=self.upper[keep],
+                      dropped=self.dropped + gone)
+
+    def only(self, names: tuple[str, ...]) -> "Design":
+        """Only the columns ``names`` (no fixed part)."""
+        keep = [i for i, n in enumerate(self.names) if n in names]
+        return Design(fixed=None, X=self.X[:, keep], names=tuple(self.names[i] for i in keep),
+                      units=tuple(self.units[i] for i in keep), lower=self.lower[keep], upper=self.upper[keep])
 
 
 def _design(cols: list[np.ndarray], names, units, lower=None, upper=None, fixed=None) -> Design:
@@ -226,6 +264,16 @@ class Term:
 
     #: number of nonlinear parameters (counted in the parameter penalty)
     n_hyper: int = 0
+    #: names of this term's *generic* linear columns (a plain gain f or a constant), which
+    #: any sensor error also produces. They are the shared nuisance: the selector drops them
+    #: when a term that owns the nuisance (``owns_nuisance``) is fitted on the same cable,
+    #: and a term is only accepted when its specific columns beat its nuisance ones alone.
+    nuisance: tuple[str, ...] = ()
+    #: True for the one term the generic offset/gain columns belong to (``offset_gain``)
+    owns_nuisance: bool = False
+    #: True for a term that delays the elongation by its hyper-parameter ``tau``: the
+    #: other terms on the cable are then built on the delayed signals (:meth:`Signals.delayed`)
+    delays_input: bool = False
 
     def evidence(self, s: Signals, c: int, h: dict[str, float]) -> np.ndarray:
         """The explaining variable (N,) for the evidence correlation and the plot: by default
@@ -283,6 +331,7 @@ class PulleyFriction(Term):
     equation = "mu * 2 f sin(alpha/2) * tanh(v_slide/v_s) + f (k0 + k_alpha (alpha - mean alpha))  (002 Sec 4 eq 19)"
     variable = "wrap-angle bearing load x direction of sliding, 2 f sin(alpha/2) sgn(v_slide) [N]"
     n_hyper = 1
+    nuisance = ("k0",)
 
     def applies(self, s, c):
         return bool(s.has_pulley[c]) and float(np.max(s.wrap[:, c])) > 1e-6
@@ -344,6 +393,7 @@ class TemperatureStiffness(Term):
     label = "temperature-dependent stiffness"
     equation = "f (c_T (T - T_mean) + g)"
     variable = "temperature x force, (T - T_mean) f [K N]"
+    nuisance = ("g",)
 
     def applies(self, s, c):
         return s.temperature is not None and float(np.ptp(s.temperature)) > 0.05
@@ -491,6 +541,7 @@ class DeadTime(Term):
     refine_hyper = "tau"
     refine_bounds = (0.0, 0.5)
     n_hyper = 1
+    delays_input = True
 
     def grid(self, s):
         return [{"tau": tau} for tau in np.unique(np.r_[0.0, np.geomspace(s.dt, 0.5, 14)])]
@@ -513,6 +564,7 @@ class OffsetGain(Term):
     label = "sensor offset and gain error"
     equation = "o + g f"
     variable = "predicted force f [N]"
+    owns_nuisance = True
 
     def design(self, s, c, h):
         return _design([np.ones(s.n), s.f0[:, c]], ("o", "g"), ("N", "-"))
