@@ -151,6 +151,11 @@ class Publisher:
                 congestion_control=zenoh.CongestionControl.BLOCK, priority=zenoh.Priority.INTERACTIVE_HIGH)
             self._queryable = self.session.declare_queryable(k.status, self._on_query)
             self._token = self.session.liveliness().declare_token(k.alive)
+            # the forces path asks "is anyone listening?" every tick: keep the answer up to
+            # date from Zenoh's matching notifications instead of querying (~10 us) each time
+            self._forces_matched = bool(self.subscribed("forces"))
+            self._matching = self._forces.declare_matching_listener(self._on_matching)
+            self._forces_matched = bool(self.subscribed("forces"))   # a change before the listener
         except BaseException:
             self.session.close()
             raise
@@ -171,6 +176,9 @@ class Publisher:
         except Exception:  # noqa: BLE001 - session closing under us
             pass
 
+    def _on_matching(self, status) -> None:
+        self._forces_matched = bool(getattr(status, "matching", status))
+
     def subscribed(self, what: str = "forces") -> bool:
         """Whether Zenoh knows of a subscriber matching the forces (or ``"alarms"``) key now."""
         pub = self._forces if what == "forces" else self._alarms
@@ -186,7 +194,7 @@ class Publisher:
         encoded while no subscriber matches (counted in ``forces_skipped``)."""
         if self._closed:
             return
-        if self.skip_unmatched and not self.subscribed():
+        if self.skip_unmatched and not self._forces_matched:
             self.forces_skipped += 1
             return
         data, _ = encode(payload, self._enc_str)
@@ -216,7 +224,7 @@ class Publisher:
             if self._closed:
                 return
             self._closed = True
-        for obj in (getattr(self, "_token", None), getattr(self, "_queryable", None),
+        for obj in (getattr(self, "_matching", None), getattr(self, "_token", None), getattr(self, "_queryable", None),
                     getattr(self, "_alarms", None), getattr(self, "_forces", None)):
             if obj is not None:
                 try:
