@@ -54,3 +54,25 @@ def test_run_embedded_default_runs_and_stops_cleanly():
 def test_run_rejects_flags_of_another_source():
     r = cli("run", "--source", "replay", "--host", "1.2.3.4")
     assert r.returncode != 0 and "--host does not apply to --source replay" in r.stderr
+
+
+def test_run_start_up_failures_are_one_clear_line(tmp_path):
+    """A Zenoh port already taken and an unknown CAN interface: exit 1, no traceback."""
+    import socket
+
+    from cablesvc.sources.controller import free_tcp_port
+
+    rec = tmp_path / "r.mcap"
+    assert cli("simulate", "--scenario", "hold-sine", "--duration", "0.5", "--out", str(rec)).returncode == 0
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        r = cli("run", "--source", "replay", "--replay", str(rec), "--no-view", "--no-snapshot",
+                "--listen", f"tcp/127.0.0.1:{port}")
+    assert r.returncode == 1
+    assert "cannot open the Zenoh session" in r.stderr and str(port) in r.stderr and "Traceback" not in r.stderr
+    r = cli("run", "--source", "can", "--interface", "nosuchif", "--no-view", "--no-snapshot",
+            "--listen", f"tcp/127.0.0.1:{free_tcp_port()}")
+    assert r.returncode == 1
+    assert "source.interface" in r.stderr and "nosuchif" in r.stderr and "Traceback" not in r.stderr

@@ -223,7 +223,19 @@ def _cmd_run(args) -> int:
     def on_signal(signum, frame):
         stop.set()
 
-    daemon = Daemon(opts)
+    try:
+        daemon = Daemon(opts)
+    except Exception as e:  # noqa: BLE001 - start-up failures get one clear line, not a traceback
+        from cablesvc.sources import SourceConfigError
+        if isinstance(e, SourceConfigError):
+            print(f"cablesvc run: {e}", file=sys.stderr)
+            return 1
+        if type(e).__module__.startswith("zenoh") or type(e).__name__ == "ZError":
+            where = opts.zenoh_config_file or f"listen {', '.join(opts.listen or ('tcp/127.0.0.1:7447',))}"
+            print(f"cablesvc run: cannot open the Zenoh session ({where}): {str(e).split(' at /')[0]}",
+                  file=sys.stderr)
+            return 1
+        raise
     signal.signal(signal.SIGINT, on_signal)          # from here on: a clean shutdown
     signal.signal(signal.SIGTERM, on_signal)
     log = logging.getLogger("cablesvc.run")
