@@ -323,3 +323,22 @@ def test_kill_9_then_restart_resumes_from_the_last_snapshot(tmp_path: Path):
     print(f"restart after kill -9: max |f - uninterrupted| {dev_restart:.4f} N over {len(seqs)} ticks; "
           f"cold start {dev_cold:.4f} N")
     assert dev_restart < 0.25 * dev_cold
+
+
+def test_subscriber_restart_while_the_daemon_runs(tmp_path: Path):
+    """A client that goes away and comes back gets the forces again; the daemon never notices."""
+    rec = simulate_recording("ipanema3", "hold-sine", None, duration=8.0, rate=200.0, seed=4)
+    path = tmp_path / "rec.mcap"
+    write_recording(path, rec)
+    zport = free_tcp_port()
+    sub = _subscriber(zport, 40)
+    d = _daemon(["--source", "replay", "--replay", str(path), "--speed", "1", "--wait-subscriber", "20"],
+                zport, tmp_path)
+    first = _collect(sub, 60)                      # the first client takes 40 messages and exits
+    sub2 = _subscriber(zport, 40)                  # a new client process
+    second = _collect(sub2, 60)
+    code, err = _sigterm(d)
+    assert code == 0, err
+    assert min(m["seq"] for m in second) > max(m["seq"] for m in first)
+    offline = _offline_forces(rec)
+    assert _assert_matches_offline(first + second, offline) == 80
