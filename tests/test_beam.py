@@ -220,3 +220,37 @@ def test_cli_simulate_and_bench_parser(tmp_path, capsys):
     assert (tmp_path / "loops.csv").exists()
     args = p.parse_args(["bench", "beam", "--json"])
     assert args.json and args.func is bench_beam.cmd_bench_beam
+
+
+def test_box_map_is_one_to_one_onto_table2_box():
+    """PSO search coordinates: the unit cube maps onto exactly the Table 2 box, and back."""
+    from cablesvc.beam.identify import TABLE2_LB, TABLE2_UB, BoxMap
+    U = np.random.default_rng(0).random((2000, 5))
+    for kind in ("linear", "valley"):
+        m = BoxMap(TABLE2_LB, TABLE2_UB, kind)
+        X = m.to_x(U)
+        assert np.all(X >= TABLE2_LB) and np.all(X <= TABLE2_UB)
+        np.testing.assert_allclose(m.to_u(X), U, atol=1e-10)
+        # the box corners (psi, delta) are reached
+        C = m.to_x(np.array([[0, 0, 0, 0, 0], [1, 1, 1, 1, 1]], float))
+        np.testing.assert_allclose(C, np.stack([TABLE2_LB, TABLE2_UB]), rtol=1e-12)
+    m = BoxMap(TABLE2_LB, TABLE2_UB, "valley")
+    X = m.to_x(np.column_stack([np.full(50, 0.4), np.linspace(0, 1, 50), np.full((50, 3), 0.5)]))
+    assert np.ptp(X[:, 0] * X[:, 1]) < 1e-12 * X[0, 0] * X[0, 1]   # u1 moves along psi delta = const
+    with pytest.raises(ValueError):
+        BoxMap(TABLE2_LB, TABLE2_UB, "log")
+
+
+def test_protocol_identification_runs_batched():
+    """Paper protocol (several amplitudes) in valley coordinates: one batched call per
+    iteration (particles x amplitudes lanes), result inside the box, PSO-only kept."""
+    from cablesvc.beam.identify import TABLE2_LB, TABLE2_UB, protocol_tests, identify_beam
+    opt = SolverOptions(n_elements=8, steps_per_cycle=60)
+    truth = SolverOptions(n_elements=16, steps_per_cycle=120, cycles=2)
+    tests = protocol_tests(ROPE_7x19, 0.075, TABLE4, (0.005, 0.02), noise=0.01, seed=0, steps_per_cycle=60,
+                           truth_options=truth)
+    assert len(tests) == 2 and not np.array_equal(tests[0].f / tests[0].amplitude, tests[1].f / tests[1].amplitude)
+    res = identify_beam(tests, particles=6, iterations=2, seed=0, options=opt, coords="valley", polish=False)
+    assert res["nsim"] == 6 * 3 * 2
+    assert np.all(res.x >= TABLE2_LB) and np.all(res.x <= TABLE2_UB)
+    assert set(res["rel_error"]) == {"psi", "delta", "gamma", "beta", "n"}

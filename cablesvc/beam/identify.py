@@ -6,7 +6,13 @@ measured restoring force ``f`` [N] of a stabilised cycle and the beam's restorin
 tests (amplitudes) the objective is the mean of their eq-25 values. Search space:
 (psi, delta, gamma, beta, n) in the ranges of Table 2, k3 = 0 (Sec 6). PSO settings are the
 paper's (p = 10, q = 75, w = 0.8, c1 = 2.8, c2 = 1.3) via :func:`cablesvc.identify.pso.pso`;
-one PSO iteration is ONE batched beam call (particles x tests lanes).
+one PSO iteration is ONE batched beam call (particles x tests lanes). Test set
+(:func:`protocol_tests`): the paper's flexural protocol, loops at A = 5, 10, 15, 20 mm
+(000 Table 1), identified together; eq 25 is then the MEAN of the per-loop eq-25 values.
+PSO search coordinates (:class:`BoxMap`): the swarm moves in the unit cube, mapped one-to-
+one onto the same Table 2 box, either linearly (identical to a PSO on the box itself) or
+``coords="valley"``: (log(psi delta), log psi across the box) for (psi, delta), so that the
+well-determined product psi delta = EJ_e / EJ is one search axis.
 
 Synthetic tests (:func:`synthetic_test`) are produced with a finer discretisation than
 the one used inside the objective (so the identification does not see its own
@@ -27,14 +33,16 @@ from cablesvc.beam.solver import (
 from cablesvc.identify.pso import normalized_mse, pso
 from cablesvc.identify.result import IdentifyResult
 
-__all__ = ["BeamTest", "synthetic_test", "LoopObjective", "identify_beam", "IDENT_NAMES", "TABLE2_LB", "TABLE2_UB",
-           "TRUTH_OPTIONS"]
+__all__ = ["BeamTest", "synthetic_test", "protocol_tests", "LoopObjective", "identify_beam", "BoxMap", "IDENT_NAMES",
+           "TABLE2_LB", "TABLE2_UB", "TRUTH_OPTIONS", "PROTOCOL_AMPLITUDES"]
 
 IDENT_NAMES = ("psi", "delta", "gamma", "beta", "n")
 TABLE2_LB = np.array([TABLE2_BOUNDS[k][0] for k in IDENT_NAMES])
 TABLE2_UB = np.array([TABLE2_BOUNDS[k][1] for k in IDENT_NAMES])
 # finer model for synthetic "measurements": 4x the elements, 2x the steps of the default
 TRUTH_OPTIONS = SolverOptions(n_elements=96, steps_per_cycle=480, cycles=3, substep_fraction=0.1)
+# the flexural test protocol of 000 Sec 4 / Table 1 (7x19, l = 75 mm): amplitudes [m]
+PROTOCOL_AMPLITUDES = (0.005, 0.010, 0.015, 0.020)
 
 
 @dataclass
@@ -73,6 +81,62 @@ def synthetic_test(section: Section, length: float, params: BeamParams, amplitud
     fn = f + noise * np.sqrt(np.mean(f ** 2)) * rng.standard_normal(f.size)
     return BeamTest(section=section, length=float(length), amplitude=float(amplitude), t=t, x=x, f=fn,
                     truth=params, noise=float(noise), info={"f_clean": f})
+
+
+def protocol_tests(section: Section, length: float, params: BeamParams,
+                   amplitudes: Sequence[float] = PROTOCOL_AMPLITUDES, *, noise: float = 0.01, seed: int = 0,
+                   **kw) -> list[BeamTest]:
+    """The paper's test set: one :func:`synthetic_test` per amplitude (noise seeds
+    ``1000 * seed + i``, independent per loop)."""
+    return [synthetic_test(section, length, params, a, noise=noise, seed=1000 * int(seed) + i, **kw)
+            for i, a in enumerate(amplitudes)]
+
+
+class BoxMap:
+    """PSO search coordinates ``u`` in the unit cube, mapped one-to-one onto the Table 2 box
+    ``[lb, ub]`` (the feasible set is exactly the box; only the coordinates change).
+
+    ``kind="linear"``: ``x = lb + u (ub - lb)``.
+    ``kind="valley"``: (psi, delta) are replaced by coordinates along and across the valley
+    the data leave (``psi delta`` = ``EJ_e / EJ`` well determined, ``psi`` alone poorly):
+    ``u0`` runs linearly over ``log(psi delta)`` from ``log(lb_psi lb_delta)`` to
+    ``log(ub_psi ub_delta)``; ``u1`` runs linearly over ``log psi`` across the interval of
+    psi values that the box allows for that product; then ``delta = (psi delta) / psi``.
+    gamma, beta, n stay linear. Continuous, piecewise smooth, one-to-one on the open cube
+    and onto the box (the cube faces u0 = 0, 1 collapse to the box corners)."""
+
+    def __init__(self, lb: np.ndarray, ub: np.ndarray, kind: str = "valley") -> None:
+        if kind not in ("linear", "valley"):
+            raise ValueError(f"coords: expected 'linear' or 'valley', got {kind!r}")
+        self.lb, self.ub, self.kind = np.asarray(lb, float), np.asarray(ub, float), kind
+
+    def to_x(self, U: np.ndarray) -> np.ndarray:
+        U = np.atleast_2d(np.asarray(U, float))
+        X = self.lb + U * (self.ub - self.lb)
+        if self.kind == "valley":
+            lp0, lp1 = np.log(self.lb[0]), np.log(self.ub[0])
+            ld0, ld1 = np.log(self.lb[1]), np.log(self.ub[1])
+            e = (lp0 + ld0) + U[:, 0] * ((lp1 + ld1) - (lp0 + ld0))        # log(psi delta)
+            a = np.maximum(lp0, e - ld1)
+            b = np.minimum(lp1, e - ld0)
+            lpsi = a + U[:, 1] * (b - a)
+            X[:, 0] = np.clip(np.exp(lpsi), self.lb[0], self.ub[0])
+            X[:, 1] = np.clip(np.exp(e - lpsi), self.lb[1], self.ub[1])
+        return X
+
+    def to_u(self, X: np.ndarray) -> np.ndarray:
+        X = np.atleast_2d(np.asarray(X, float))
+        U = (X - self.lb) / (self.ub - self.lb)
+        if self.kind == "valley":
+            lp0, lp1 = np.log(self.lb[0]), np.log(self.ub[0])
+            ld0, ld1 = np.log(self.lb[1]), np.log(self.ub[1])
+            lpsi, e = np.log(X[:, 0]), np.log(X[:, 0] * X[:, 1])
+            U[:, 0] = (e - (lp0 + ld0)) / ((lp1 + ld1) - (lp0 + ld0))
+            a = np.maximum(lp0, e - ld1)
+            b = np.minimum(lp1, e - ld0)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                U[:, 1] = np.where(b > a, (lpsi - a) / (b - a), 0.5)
+        return np.clip(U, 0.0, 1.0)
 
 
 class LoopObjective:
@@ -129,12 +193,16 @@ class LoopObjective:
 def identify_beam(tests: Sequence[BeamTest] | BeamTest, *, particles: int = 10, iterations: int = 75,
                   bounds: tuple[np.ndarray, np.ndarray] | None = None, seed: Any = 0,
                   options: SolverOptions | None = None, progress: Any = None, tol: float | None = None,
-                  polish: bool = True) -> IdentifyResult:
+                  polish: bool = True, coords: str = "linear") -> IdentifyResult:
     """PSO of 000 Sec 5 (eqs 25-27) on the beam model. Returns the
     :class:`~cablesvc.identify.result.IdentifyResult` of :func:`pso` with ``x`` = (psi,
     delta, gamma, beta, n), ``fun`` = eq 25 (fraction; x100 for the paper's MSE %), and
     extras ``mse_percent``, ``nsim`` (beam simulations), ``sim_seconds``, ``seconds``,
     ``params`` (:class:`BeamParams`) and, for synthetic tests, ``rel_error`` per parameter.
+
+    ``coords``: PSO search coordinates, ``"linear"`` or ``"valley"`` (:class:`BoxMap`); the
+    box is Table 2 (or ``bounds``) either way. The result has ``u`` (best in search
+    coordinates) and ``coords``.
 
     ``polish``: after the PSO, a bounded least-squares descent (trust-region reflective,
     :func:`cablesvc.identify.local.refine`) on the eq-25 residuals from the PSO best. The
@@ -148,8 +216,14 @@ def identify_beam(tests: Sequence[BeamTest] | BeamTest, *, particles: int = 10, 
     obj = LoopObjective(tests, options)
     lb, ub = bounds if bounds is not None else (TABLE2_LB, TABLE2_UB)
     t0 = time.perf_counter()
-    res = pso(obj, (np.asarray(lb, float), np.asarray(ub, float)), particles=particles, iterations=iterations,
+    bmap = BoxMap(lb, ub, coords)
+    n = len(IDENT_NAMES)
+    res = pso(lambda U: obj(bmap.to_x(U)), (np.zeros(n), np.ones(n)), particles=particles, iterations=iterations,
               seed=seed, names=list(IDENT_NAMES), progress=progress, tol=tol)
+    res["u"] = res.x
+    res["x"] = bmap.to_x(res.x)[0]
+    res["population"] = bmap.to_x(res["population"])
+    res["coords"] = coords
     res["seconds"] = time.perf_counter() - t0
     res["nsim"] = obj.nsim
     res["sim_seconds"] = obj.seconds
