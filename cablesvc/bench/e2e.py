@@ -162,26 +162,32 @@ def _baseline_publisher(port: int, rate: float, seconds: float, n_cables: int) -
     print(json.dumps({"sent": n}), flush=True)
 
 
-def run_e2e_bench(rate: float = 1000.0, seconds: float = 60.0, *, robot: str = "ipanema3", fd: bool = True,
-                  encoding: str = "json", baseline_seconds: float | None = 10.0,
-                  progress: Callable[[str, float], None] | None = None) -> dict[str, Any]:
-    """Run the three-process benchmark; returns the JSON keys of ``cablesvc bench e2e``."""
+def run_three_processes(rate: float, seconds: float, collector: Callable[[dict, int], None], *,
+                        robot: str = "ipanema3", fd: bool = True, encoding: str = "json",
+                        say: Callable[[str, float], None] | None = None,
+                        on_subscribed: Callable[[int], None] | None = None,
+                        on_ready: Callable[[], None] | None = None,
+                        on_finished: Callable[[], None] | None = None) -> dict[str, Any]:
+    """The set-up shared by ``bench e2e`` and ``bench soak`` (see the module docstring).
+
+    Starts the daemon process on a loopback CAN bus, subscribes ``collector(payload,
+    receive_ns)`` to its forces, runs the controller process for ``seconds`` at ``rate`` Hz,
+    and stops everything. Hooks: ``on_subscribed(daemon_pid)`` once the subscription is in
+    place, ``on_ready()`` when the controller starts ticking, ``on_finished()`` after the
+    last messages arrived. Returns ``fd`` (False when the bus has no CAN FD), the
+    controller's ``summary``, the daemon's ``status`` and ``shutdown_s`` (SIGTERM to exit).
+    """
     from cablesvc.service.zenoh_io import Listener, make_config
     from cablesvc.sources.can_source import free_udp_port, loopback_bus_config
     from cablesvc.sources.controller import free_tcp_port
 
-    say = progress or (lambda what, frac: None)
+    say = say or (lambda what, frac: None)
     try:
         bus = loopback_bus_config(free_udp_port(), fd=fd)
     except TypeError:                                   # a python-can bus without FD support
         bus = loopback_bus_config(free_udp_port())
         fd = False
     zport = free_tcp_port()
-    result: dict[str, Any] = {"rate_hz": rate, "seconds": seconds, "robot": robot, "transport": "can-fd" if fd else "can",
-                              "encoding": encoding}
-    if baseline_seconds:
-        say("baseline: Zenoh alone", 0.0)
-        result["baseline"] = run_baseline(rate, baseline_seconds)
     with tempfile.TemporaryDirectory(prefix="cablesvc-e2e-") as tmp:
         cfg = Path(tmp) / "daemon.toml"
         source = {"kind": "can", "interface": bus["interface"], "channel": bus["channel"], "fd": fd if fd else None,
@@ -192,13 +198,14 @@ def run_e2e_bench(rate: float = 1000.0, seconds: float = 60.0, *, robot: str = "
         daemon = subprocess.Popen([sys.executable, "-m", "cablesvc", "run", "--config", str(cfg), "--no-view",
                                    "--no-snapshot", "--log-level", "WARNING"],
                                   stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
-        col = _Collector()
         lst = None
         ctl = None
         try:
-            lst = Listener(robot, make_config(listen=(), connect=(f"tcp/127.0.0.1:{zport}",)), on_forces=col)
+            lst = Listener(robot, make_config(listen=(), connect=(f"tcp/127.0.0.1:{zport}",)), on_forces=collector)
             _wait_alive(lst, robot, 60.0, daemon)
             time.sleep(1.0)                               # let the daemon learn of our subscription
+            if on_subscribed:
+                on_subscribed(daemon.pid)
             say("starting the controller", 0.0)
             ctl = subprocess.Popen([sys.executable, "-m", "cablesvc.sources.controller", "--transport", "can",
                                     "--robot", robot, "--rate", str(rate), "--seconds", str(seconds),
@@ -211,16 +218,21 @@ def run_e2e_bench(rate: float = 1000.0, seconds: float = 60.0, *, robot: str = "
                     lines.append(line.decode())
             reader = threading.Thread(target=read_ctl, daemon=True)
             reader.start()
+            while ctl.poll() is None and not any('"ready"' in x for x in lines):
+                time.sleep(0.05)
+            if on_ready:
+                on_ready()
             t0 = time.monotonic()
             while ctl.poll() is None:
                 time.sleep(0.25)
-                if any('"ready"' in x for x in lines):
-                    say("running", min(1.0, (time.monotonic() - t0) / max(seconds, 1e-9)))
+                say("running", min(1.0, (time.monotonic() - t0) / max(seconds, 1e-9)))
                 if daemon.poll() is not None:
                     raise RuntimeError("the daemon died during the run: "
                                        + daemon.stderr.read().decode(errors="replace")[-3000:])
             reader.join(2.0)
             time.sleep(1.0)                               # let the last messages arrive
+            if on_finished:
+                on_finished()
             summary = next((json.loads(x) for x in reversed(lines) if '"done"' in x), None)
             if summary is None:
                 raise RuntimeError("the controller ended without a summary: "
@@ -232,12 +244,31 @@ def run_e2e_bench(rate: float = 1000.0, seconds: float = 60.0, *, robot: str = "
                 _stop(ctl)
             if lst is not None:
                 lst.close()
-    sent = int(summary["ticks_sent"])
+    return {"fd": fd, "summary": summary, "status": status, "shutdown_s": shutdown_s}
+
+
+def run_e2e_bench(rate: float = 1000.0, seconds: float = 60.0, *, robot: str = "ipanema3", fd: bool = True,
+                  encoding: str = "json", baseline_seconds: float | None = 10.0,
+                  progress: Callable[[str, float], None] | None = None) -> dict[str, Any]:
+    """Run the three-process benchmark; returns the JSON keys of ``cablesvc bench e2e``."""
+    say = progress or (lambda what, frac: None)
+    baseline = None
+    if baseline_seconds:
+        say("baseline: Zenoh alone", 0.0)
+        baseline = run_baseline(rate, baseline_seconds)
+    col = _Collector()
+    run = run_three_processes(rate, seconds, col, robot=robot, fd=fd, encoding=encoding, say=say)
+    status = run["status"]
+    result: dict[str, Any] = {"rate_hz": rate, "seconds": seconds, "robot": robot,
+                              "transport": "can-fd" if run["fd"] else "can", "encoding": encoding}
+    if baseline is not None:
+        result["baseline"] = baseline
+    sent = int(run["summary"]["ticks_sent"])
     result.update(ticks=sent, received=len(col.seqs), missed=sent - len(col.seqs),
-                  controller_overruns=summary.get("overruns"), **_percentiles(col.lat),
+                  controller_overruns=run["summary"].get("overruns"), **_percentiles(col.lat),
                   daemon_input=status.get("input"), daemon_latency_us=status.get("latency_us"),
                   daemon_published=status.get("published"), daemon_skipped=status.get("skipped_no_subscriber"),
-                  shutdown_s=round(shutdown_s, 3))
+                  shutdown_s=round(run["shutdown_s"], 3))
     return result
 
 

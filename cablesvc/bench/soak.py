@@ -28,16 +28,12 @@ import argparse
 import array
 import json
 import math
-import os
-import subprocess
 import sys
-import tempfile
 import threading
 import time
-from pathlib import Path
 from typing import Any, Callable, Optional
 
-from cablesvc.bench.e2e import _percentiles, _stop, _wait_alive, write_daemon_config
+from cablesvc.bench.e2e import _percentiles, run_three_processes
 
 __all__ = ["add_parser", "cmd_soak", "read_rss_mb", "run_soak_bench"]
 
@@ -119,81 +115,36 @@ def run_soak_bench(rate: float = 1000.0, minutes: float = 30.0, *, robot: str = 
                    encoding: str = "json", rss_interval: float = 2.0,
                    progress: Callable[[str, float], None] | None = None) -> dict[str, Any]:
     """Run the soak; returns the JSON keys of ``cablesvc bench soak``."""
-    from cablesvc.service.zenoh_io import Listener, make_config
-    from cablesvc.sources.can_source import free_udp_port, loopback_bus_config
-    from cablesvc.sources.controller import free_tcp_port
-
     say = progress or (lambda what, frac: None)
     seconds = float(minutes) * 60.0
-    try:
-        bus = loopback_bus_config(free_udp_port(), fd=fd)
-    except TypeError:                                   # a python-can bus without FD support
-        bus = loopback_bus_config(free_udp_port())
-        fd = False
-    zport = free_tcp_port()
     tpm = int(round(rate * 60.0))
     n_minutes = max(1, math.ceil(float(minutes) - 1e-9))
     col = _MinuteCollector(tpm, n_minutes)
-    with tempfile.TemporaryDirectory(prefix="cablesvc-soak-") as tmp:
-        cfg = Path(tmp) / "daemon.toml"
-        source = {"kind": "can", "interface": bus["interface"], "channel": bus["channel"], "fd": fd if fd else None,
-                  "deadline_s": 0.02, "bus_kwargs": bus.get("bus_kwargs") or {}}
-        write_daemon_config(cfg, robot, f"tcp/127.0.0.1:{zport}", source, encoding)
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
-        say("starting the daemon", 0.0)
-        daemon = subprocess.Popen([sys.executable, "-m", "cablesvc", "run", "--config", str(cfg), "--no-view",
-                                   "--no-snapshot", "--log-level", "WARNING"],
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
-        sampler = _RssSampler(daemon.pid, rss_interval)
-        lst = None
-        ctl = None
-        rss_start = None
-        try:
-            lst = Listener(robot, make_config(listen=(), connect=(f"tcp/127.0.0.1:{zport}",)), on_forces=col)
-            _wait_alive(lst, robot, 60.0, daemon)
-            time.sleep(1.0)                               # let the daemon learn of our subscription
-            rss_start = read_rss_mb(daemon.pid)
-            say("starting the controller", 0.0)
-            ctl = subprocess.Popen([sys.executable, "-m", "cablesvc.sources.controller", "--transport", "can",
-                                    "--robot", robot, "--rate", str(rate), "--seconds", str(seconds),
-                                    "--duration", "20", "--bus-config", json.dumps(bus)],
-                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
-            lines: list[str] = []
+    sampler: Optional[_RssSampler] = None
+    rss_start = None
 
-            def read_ctl():
-                for line in ctl.stdout:
-                    lines.append(line.decode())
-            reader = threading.Thread(target=read_ctl, daemon=True)
-            reader.start()
-            while ctl.poll() is None and not any('"ready"' in x for x in lines):
-                time.sleep(0.05)
-            sampler.restart_clock()                       # RSS time axis: seconds since the controller is ready
-            sampler.sample()
-            sampler.start()
-            t0 = time.monotonic()
-            while ctl.poll() is None:
-                time.sleep(0.25)
-                say("running", min(1.0, (time.monotonic() - t0) / max(seconds, 1e-9)))
-                if daemon.poll() is not None:
-                    raise RuntimeError("the daemon died during the run: "
-                                       + daemon.stderr.read().decode(errors="replace")[-3000:])
-            reader.join(2.0)
-            time.sleep(1.0)                               # let the last messages arrive
-            sampler.sample()
-            sampler.stop()
-            summary = next((json.loads(x) for x in reversed(lines) if '"done"' in x), None)
-            if summary is None:
-                raise RuntimeError("the controller ended without a summary: "
-                                   + ctl.stderr.read().decode(errors="replace")[-3000:])
-            status = lst.status(timeout=3.0) or {}
-        finally:
-            sampler.stop()
-            shutdown_s = _stop(daemon)
-            if ctl is not None and ctl.poll() is None:
-                _stop(ctl)
-            if lst is not None:
-                lst.close()
+    def subscribed(pid: int) -> None:
+        nonlocal sampler, rss_start
+        sampler = _RssSampler(pid, rss_interval)
+        rss_start = read_rss_mb(pid)
 
+    def ready() -> None:
+        sampler.restart_clock()                       # RSS time axis: seconds since the controller is ready
+        sampler.sample()
+        sampler.start()
+
+    def finished() -> None:
+        sampler.sample()
+        sampler.stop()
+
+    try:
+        run = run_three_processes(rate, seconds, col, robot=robot, fd=fd, encoding=encoding, say=say,
+                                  on_subscribed=subscribed, on_ready=ready, on_finished=finished)
+    finally:
+        if sampler is not None:
+            sampler.stop()
+    fd = run["fd"]
+    summary, status, shutdown_s = run["summary"], run["status"], run["shutdown_s"]
     sent = int(summary["ticks_sent"])
     samples = sampler.samples
     if seconds >= 300.0:
