@@ -196,6 +196,25 @@ def _linear_guess(x: np.ndarray, f: np.ndarray) -> tuple[float, float]:
     return k, float(-b / k)
 
 
+def _hysteresis_to_model(S):
+    """Search -> model coordinates of the Bouc-Wen-type spaces: columns 1, 2 searched as
+    log10, column 3 as a ratio to column 2 (gamma / beta: the loop shape)."""
+    V = np.array(S, dtype=float, copy=True)
+    V[..., 1] = 10.0 ** S[..., 1]
+    V[..., 2] = 10.0 ** S[..., 2]
+    V[..., 3] = S[..., 3] * V[..., 2]
+    return V
+
+
+def _hysteresis_to_search(V):
+    """Inverse of :func:`_hysteresis_to_model`."""
+    S = np.array(V, dtype=float, copy=True)
+    S[..., 1] = np.log10(np.maximum(V[..., 1], 1e-300))
+    S[..., 2] = np.log10(np.maximum(V[..., 2], 1e-300))
+    S[..., 3] = V[..., 3] / np.where(V[..., 2] != 0, V[..., 2], 1.0)
+    return S
+
+
 def _space(model: str, data: CableData, degree: int = 3) -> Space:
     K = len(data.cables)
     x, f, l0 = data.x, data.force, data.l0
@@ -244,20 +263,7 @@ def _space(model: str, data: CableData, degree: int = 3) -> Space:
         sub = np.column_stack([3 * kk, np.log10(kk * 10), bscale + 5, np.ones(K), np.full(K, 3.0),
                                f.mean(axis=0) + fr])
 
-        def to_model(S):
-            V = np.array(S, dtype=float, copy=True)
-            V[..., 1] = 10.0 ** S[..., 1]
-            V[..., 2] = 10.0 ** S[..., 2]
-            V[..., 3] = S[..., 3] * V[..., 2]
-            return V
-
-        def to_search(V):
-            S = np.array(V, dtype=float, copy=True)
-            S[..., 1] = np.log10(np.maximum(V[..., 1], 1e-300))
-            S[..., 2] = np.log10(np.maximum(V[..., 2], 1e-300))
-            S[..., 3] = V[..., 3] / np.where(V[..., 2] != 0, V[..., 2], 1.0)
-            return S
-
+        to_model, to_search = _hysteresis_to_model, _hysteresis_to_search
         lb = np.column_stack([np.zeros(K), np.zeros(K), np.zeros(K), np.full(K, -np.inf), np.full(K, 0.3),
                               np.full(K, -np.inf)])
         ub = np.column_stack([np.full(K, np.inf)] * 4 + [np.full(K, 6.0), np.full(K, np.inf)])
@@ -277,20 +283,7 @@ def _space(model: str, data: CableData, degree: int = 3) -> Space:
         sub = np.column_stack([1 / X ** 2, np.log10(kk * 10), bscale + 5, np.ones(K), np.full(K, 3.0),
                                3 * kk, kk / X, kk / X ** 2, x0z + d])
 
-        def to_model(S):
-            V = np.array(S, dtype=float, copy=True)
-            V[..., 1] = 10.0 ** S[..., 1]
-            V[..., 2] = 10.0 ** S[..., 2]
-            V[..., 3] = S[..., 3] * V[..., 2]
-            return V
-
-        def to_search(V):
-            S = np.array(V, dtype=float, copy=True)
-            S[..., 1] = np.log10(np.maximum(V[..., 1], 1e-300))
-            S[..., 2] = np.log10(np.maximum(V[..., 2], 1e-300))
-            S[..., 3] = V[..., 3] / np.where(V[..., 2] != 0, V[..., 2], 1.0)
-            return S
-
+        to_model, to_search = _hysteresis_to_model, _hysteresis_to_search
         lb = np.column_stack([np.full(K, -np.inf), np.zeros(K), np.zeros(K), np.full(K, -np.inf), np.full(K, 0.3)]
                              + [np.full(K, -np.inf)] * 4)
         ub = np.column_stack([np.full(K, np.inf)] * 4 + [np.full(K, 6.0)] + [np.full(K, np.inf)] * 4)
