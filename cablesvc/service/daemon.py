@@ -42,6 +42,7 @@ from cablesvc.config.params import ModelParams
 from cablesvc.jsonable import jsonable
 from cablesvc.config.robot import Robot
 from cablesvc.kernel import Predictor
+from cablesvc.service.messages import forces_payload
 
 log = logging.getLogger("cablesvc.daemon")
 
@@ -386,8 +387,6 @@ class Daemon:
     # -- the loop -------------------------------------------------------------------------
     def step(self, tick) -> None:
         """Process one validated input tick."""
-        from cablesvc.service.messages import forces_payload
-
         s = self.stats
         try:
             out = self.predictor.tick(tick.t, tick.motor_length, tick.position, tick.orientation,
