@@ -2,10 +2,15 @@
 
 Used by the default demo (``cablesvc run`` without hardware), the tests and the benchmarks.
 A :class:`SimulatedController` precomputes a digital-twin recording
-(:func:`cablesvc.simulate.simulate_recording`) and plays it endlessly from a thread at
-``rate`` ticks per second in real time. It plays the recording forward, then backward, then
+(:func:`cablesvc.simulate.simulate_twin`) and plays it endlessly from a thread at
+``rate`` ticks per second in real time. The motion is played forward, then backward, then
 forward again, so the motor lengths never jump, while ``seq`` (+1 per tick) and ``t``
-(seq / rate [s]) keep increasing. Ticks are spaced by a deadline loop: sleep until just
+(seq / rate [s]) keep increasing. The measured forces are not the forward run's forces
+read backwards: a hysteretic cable does not retrace its loop when the motion reverses
+(the damping term changes sign), so playing them backwards would show the daemon a
+model error of several newtons that no real cable has. The twin's truth model is
+therefore run over the whole there-and-back motion, twice, and the second (periodic)
+cycle is played in a loop: force and motion agree at every tick. Ticks are spaced by a deadline loop: sleep until just
 before the tick's time, then spin for the last ``spin_s`` seconds.
 
 Transports:
@@ -66,6 +71,40 @@ def free_tcp_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
+def there_and_back_recording(robot: Robot, scenario: str, *, duration: float, rate: float,
+                             seed: int) -> Recording:
+    """One period of endless play: the twin's motion forward then backward (rows 0 .. n-1,
+    n-2 .. 1), with the measured forces the twin's truth model gives on that motion.
+
+    The truth model runs over two such periods from rest and the second is kept, so the
+    hysteresis state at the end of the period is the one at its start: looping it is
+    seamless. t and seq of the result are those of play (k / rate, k)."""
+    from cablesvc.simulate import simulate_twin
+
+    run = simulate_twin(robot, scenario, duration=duration, rate=rate, seed=seed)
+    rec = run.recording
+    n = rec.n_ticks
+    if n < 2:
+        raise ValueError("the controller needs a recording of at least 2 ticks")
+    rows = np.concatenate([np.arange(n), np.arange(n - 2, 0, -1)])
+    period = rows.size
+    twice = np.concatenate([rows, rows])
+    dt = 1.0 / float(rate)
+    out = run.truth.run(t=np.arange(2 * period) * dt, dt=dt, elongation=run.elongation[twice],
+                        motor_length=rec.motor_length[twice], wrap_angle=run.wrap_angle[twice],
+                        free_length=run.free_length[twice], temperature=rec.temperature[twice],
+                        rng=np.random.default_rng([seed, 4]))
+
+    def take(a: Optional[np.ndarray]) -> Optional[np.ndarray]:
+        return None if a is None else a[rows]
+
+    metadata = dict(rec.metadata, playback="there-and-back cycle, forces from the truth model on it")
+    return Recording(robot=rec.robot, metadata=metadata, t=np.arange(period) * dt,
+                     seq=np.arange(period, dtype=np.int64), motor_length=rec.motor_length[rows],
+                     position=take(rec.position), orientation=take(rec.orientation),
+                     force=out.measured[period:], temperature=take(rec.temperature))
+
+
 class SimulatedController:
     """Plays a twin recording as a controller would, at ``rate`` [Hz], from a thread.
 
@@ -99,10 +138,10 @@ class SimulatedController:
         if not (rate > 0):
             raise ValueError(f"rate must be > 0 Hz, got {rate!r}")
         self.rate = float(rate)
+        #: True when the recording is one whole there-and-back cycle played in a loop
+        self.periodic = recording is None
         if recording is None:
-            from cablesvc.simulate import simulate_recording
-
-            recording = simulate_recording(self.robot, scenario, None, duration=duration, rate=rate, seed=seed)
+            recording = there_and_back_recording(self.robot, scenario, duration=duration, rate=rate, seed=seed)
         if recording.n_ticks < 2:
             raise ValueError("the controller needs a recording of at least 2 ticks")
         if recording.n_cables != self.robot.n_cables:
@@ -141,8 +180,11 @@ class SimulatedController:
 
     # ------------------------------------------------------------------ ticks
     def row_at(self, k: int) -> int:
-        """The recording row of the k-th tick (forward, then backward, then forward ...)."""
+        """The recording row of the k-th tick: a there-and-back twin cycle in a loop, or a
+        given recording forward, then backward, then forward ..."""
         n = self.recording.n_ticks
+        if self.periodic:
+            return k % n
         period = 2 * n - 2
         j = k % period
         return j if j < n else period - j
