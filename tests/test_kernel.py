@@ -163,7 +163,12 @@ def test_bench_kernel_cli_json():
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     rows = [json.loads(line) for line in out.stdout.splitlines()]
-    assert [r["input"] for r in rows] == ["normal", "reversal", "slack", "large"]
+    assert [r["input"] for r in rows] == ["normal", "reversal", "slack", "large", "machine"]
+    machine = rows.pop()
+    # the same-run machine baseline: a fixed numpy workload sized to the kernel's median
+    assert machine["model"] == "none" and machine["calls"] > 10 and machine["scheduling"] == "default"
+    assert 0 < machine["p50_us"] <= machine["p99_us"] <= machine["max_us"]
+    assert 0.2 < machine["p50_us"] / rows[0]["p50_us"] < 5
     for r in rows:
         assert set(r) == {"robot", "model", "input", "ticks", "p50_us", "p99_us", "p999_us", "max_us",
                           "alloc_bytes_per_tick"}

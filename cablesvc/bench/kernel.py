@@ -6,6 +6,14 @@ sinusoidal elongation around the pretension, as in 002 Sec 4) and adversarial in
 prints p50, p99, p99.9 and max per tick in microseconds, plus traced bytes allocated
 per tick. The normal run is the baseline the adversarial runs are compared with, in
 the same process and run.
+
+A second baseline, ``input = "machine"``, says what this machine's timer and scheduler
+allow: a fixed workload of ``calls`` numpy additions on 8-element arrays (the kind of
+work the kernel is made of, with no data dependence at all), sized at start so that its
+median equals the kernel's, is timed tick by tick *interleaved* with the normal kernel
+run. Its p99 is the p99 that any workload of the kernel's length gets here; the kernel
+cannot be expected to beat it. ``cpu`` pins the process to one CPU and ``realtime`` asks
+for SCHED_FIFO priority, the settings deploy/README.md recommends for production.
 """
 
 from __future__ import annotations
@@ -36,6 +44,41 @@ class KernelBenchResult:
     p999_us: float
     max_us: float
     alloc_bytes_per_tick: float
+    calls: int | None = None          # machine baseline only: numpy calls per "tick"
+    scheduling: str = "default"
+
+
+def _fixed_work(n: int, a: np.ndarray = np.ones(8), b: np.ndarray = np.zeros(8)) -> None:
+    add = np.add
+    for _ in range(n):
+        add(a, b, b)
+
+
+def calibrate_calls(target_us: float, *, probes: int = 2000) -> int:
+    """Number of 8-element numpy additions whose median time is ``target_us``."""
+    clock = time.perf_counter_ns
+    ts = np.empty(probes)
+    for i in range(probes):
+        a = clock()
+        _fixed_work(20)
+        ts[i] = clock() - a
+    per_call = float(np.median(ts)) / 1e3 / 20
+    return max(1, int(round(target_us / per_call)))
+
+
+def set_scheduling(cpu: int | None, realtime: bool) -> str:
+    """Pin to ``cpu`` and/or switch to SCHED_FIFO 50; returns a description. Raises
+    OSError with the reason when the system refuses."""
+    import os
+
+    parts = []
+    if cpu is not None:
+        os.sched_setaffinity(0, {int(cpu)})
+        parts.append(f"pinned to CPU {cpu}")
+    if realtime:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(50))
+        parts.append("SCHED_FIFO 50")
+    return ", ".join(parts) or "default"
 
 
 def make_inputs(kind: str, L: np.ndarray, x_pre: np.ndarray, ticks: int, rate: float, seed: int = 0) -> np.ndarray:
@@ -58,14 +101,18 @@ def make_inputs(kind: str, L: np.ndarray, x_pre: np.ndarray, ticks: int, rate: f
 
 
 def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_file: str | None = None,
-                     ticks: int = 100_000, inputs=INPUTS, rate: float = 1000.0, progress=None) -> list[KernelBenchResult]:
+                     ticks: int = 100_000, inputs=INPUTS, rate: float = 1000.0, progress=None,
+                     machine_baseline: bool = True, cpu: int | None = None,
+                     realtime: bool = False) -> list[KernelBenchResult]:
     geom = load_robot(robot).geometry()
     pos = np.zeros(3)
     quat = np.array([0.0, 0.0, 0.0, 1.0])
     L = inverse_kinematics(geom, pos[None], quat[None]).length[0]
     params: ModelParams = load_params(params_file) if params_file else default_params(geom.ea, L, model)
     x_pre = 60.0 / (geom.ea / L)              # 60 N pretension
+    sched = set_scheduling(cpu, realtime)
     results = []
+    baseline: KernelBenchResult | None = None
     for kind in inputs:
         ml_all = make_inputs(kind, L, x_pre, ticks, rate)
         pred = Predictor(geom, params)
@@ -87,6 +134,17 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
         durations = np.empty(ticks, dtype=np.int64)
         t0 = (warm + 200 + n_alloc) / rate
         clock = time.perf_counter_ns
+        paired = machine_baseline and baseline is None and kind == "normal"
+        calls = 0
+        if paired:
+            probe = np.empty(2000)
+            for k in range(probe.size):
+                a = clock()
+                pred.tick(t0 + k / rate, ml_all[k], pos, quat)
+                probe[k] = clock() - a
+            calls = calibrate_calls(float(np.median(probe)) / 1e3)
+            base_d = np.empty(ticks, dtype=np.int64)
+            t0 += probe.size / rate
         gc.collect()
         gc.freeze()
         gc.disable()
@@ -96,19 +154,42 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
                 a = clock()
                 pred.tick(t0 + k / rate, ml, pos, quat)
                 durations[k] = clock() - a
+                if paired:
+                    a = clock()
+                    _fixed_work(calls)
+                    base_d[k] = clock() - a
                 if progress is not None and k % 5000 == 0:
                     progress(kind, k, ticks)
         finally:
             gc.enable()
             gc.unfreeze()
+        if paired:
+            bu = base_d / 1e3
+            baseline = KernelBenchResult(
+                robot=robot, model="none", input="machine", ticks=ticks,
+                p50_us=float(np.percentile(bu, 50)), p99_us=float(np.percentile(bu, 99)),
+                p999_us=float(np.percentile(bu, 99.9)), max_us=float(bu.max()), alloc_bytes_per_tick=0.0,
+                calls=calls, scheduling=sched)
         us = durations / 1e3
         results.append(KernelBenchResult(
             robot=robot, model=params.model, input=kind, ticks=ticks,
             p50_us=float(np.percentile(us, 50)), p99_us=float(np.percentile(us, 99)),
             p999_us=float(np.percentile(us, 99.9)), max_us=float(us.max()),
-            alloc_bytes_per_tick=float(alloc_per_tick)))
+            alloc_bytes_per_tick=float(alloc_per_tick), scheduling=sched))
+    if baseline is not None:
+        results.append(baseline)
     return results
 
 
 def as_dicts(results: list[KernelBenchResult]) -> list[dict]:
-    return [asdict(r) for r in results]
+    """The issue's keys for kernel runs (plus ``scheduling`` when not the default); the
+    machine baseline adds ``calls`` and ``scheduling``."""
+    out = []
+    for r in results:
+        d = asdict(r)
+        if r.calls is None:
+            del d["calls"]
+            if r.scheduling == "default":
+                del d["scheduling"]
+        out.append(d)
+    return out
