@@ -239,3 +239,28 @@ def test_boucwen_hold_points_at_input_reconstruction():
     assert dg["cause"] == "input reconstruction"
     assert dg["best_physics_valid_rmse"] > 3 * r["noise_rms"]
     assert dg["bandlimited_refit_valid_rmse"] < 1.5 * r["noise_rms"]
+
+
+def test_general_oscillator_integrator_is_the_identification_integrator_plus_the_extra_terms():
+    """Discovery's integrator (with the candidate cubic spring, quadratic damping and
+    Coulomb terms) must be identification's when those terms are zero, to rounding, for
+    nu = 1 and nu = 2; and a non-zero extra term must change the response."""
+    from cablesvc.discover.oscillator_case import simulate_general
+    from cablesvc.identify.oscillator import BENCHMARK_TRUTH, PARAM_NAMES, simulate_fine
+
+    rng = np.random.default_rng(4)
+    u = 40.0 * np.cumsum(rng.normal(size=3000)) / 30.0            # a wandering force [N]
+    h = 1 / 15000
+    for nu in (1.0, 2.0):
+        th = np.array([BENCHMARK_TRUTH[k] for k in PARAM_NAMES])
+        th[6] = nu
+        if nu == 2.0:
+            th[4:6] *= 1e-3
+        y_id = simulate_fine(u, h, th)[0][0]
+        P = np.concatenate([th, [0.0, 0.0, 0.0, 1e-3]])              # k3, c2, Fc = 0; v_s
+        y_gen, ok = simulate_general(u, h, P)
+        assert ok[0] and np.max(np.abs(y_gen[0] - y_id)) <= 1e-12 * np.max(np.abs(y_id))
+        P3 = P.copy()
+        P3[7] = 1e10                                                 # a cubic spring
+        y3 = simulate_general(u, h, P3)[0][0]
+        assert np.max(np.abs(y3 - y_id)) > 1e-3 * np.max(np.abs(y_id))

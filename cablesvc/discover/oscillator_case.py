@@ -42,14 +42,14 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Optional
 
 import numba
 import numpy as np
 from scipy.optimize import least_squares
 
-from cablesvc.identify.oscillator import FS, UPSAMPLE, bandlimited_upsample, decimate, simulate_fine
+from cablesvc.identify.oscillator import FS, UPSAMPLE, _bw_terms, bandlimited_upsample, decimate, simulate_fine
 
 __all__ = ["OSC_TERMS", "OscModel", "simulate_general", "simulate_model", "run_boucwen_discovery",
            "boucwen_summary"]
@@ -77,6 +77,9 @@ P_UNITS = {"mL": "kg", "cL": "N s/m", "kL": "N/m", "alpha": "N/m", "beta_gamma":
 
 @numba.njit(cache=True)
 def _general_lane(u, h, p, out_y):
+    """One lane of :func:`simulate_general`: the integrator of
+    :func:`cablesvc.identify.oscillator.simulate_fine` (same Bouc-Wen law, ``_bw_terms``) plus
+    the extra restoring forces of the candidate terms, without sensitivities."""
     m, c, k, A, B, D, nu = p[0], p[1], p[2], p[3], p[4], p[5], p[6]
     k3, c2, fc, vs = p[7], p[8], p[9], p[10]
     n = u.size
@@ -84,21 +87,6 @@ def _general_lane(u, h, p, out_y):
     y = 0.0
     v = 0.0
     z = 0.0
-
-    def bw(v, z):
-        az = abs(z)
-        if nu == 1.0:
-            pp = 1.0
-        elif az > 0.0:
-            pp = az ** (nu - 1.0)
-        else:
-            pp = 0.0 if nu > 1.0 else 1e300
-        sv = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
-        sz = 1.0 if z > 0.0 else (-1.0 if z < 0.0 else 0.0)
-        g = A * v - B * abs(v) * pp * z - D * v * pp * az
-        gv = A - B * sv * pp * z - D * pp * az
-        gz = -nu * pp * (B * abs(v) + D * v * sz)
-        return g, gv, gz
 
     def fnl(y, v):
         t = math.tanh(v / vs) if fc != 0.0 else 0.0
@@ -109,7 +97,7 @@ def _general_lane(u, h, p, out_y):
 
     f0, _, _ = fnl(y, v)
     a = (u[0] - c * v - k * y - z - f0) / m
-    g, _, _ = bw(v, z)
+    g = _bw_terms(A, B, D, nu, v, z)[0]
     out_y[0] = y
     for i in range(1, n):
         ui = u[i]
@@ -119,7 +107,7 @@ def _general_lane(u, h, p, out_y):
         for it in range(60):
             v1 = 2.0 / h * (y1 - y) - v
             a1 = 4.0 / hh * (y1 - y) - 4.0 / h * v - a
-            g1, gv1, gz1 = bw(v1, z1)
+            g1, gv1, gz1, _ = _bw_terms(A, B, D, nu, v1, z1)
             f1, fy1, fv1 = fnl(y1, v1)
             r1 = m * a1 + c * v1 + k * y1 + z1 + f1 - ui
             r2 = z1 - z - 0.5 * h * (g + g1)
@@ -142,7 +130,7 @@ def _general_lane(u, h, p, out_y):
             return i
         v1 = 2.0 / h * (y1 - y) - v
         a1 = 4.0 / hh * (y1 - y) - 4.0 / h * v - a
-        g1, _, _ = bw(v1, z1)
+        g1 = _bw_terms(A, B, D, nu, v1, z1)[0]
         y, v, a, z, g = y1, v1, a1, z1, g1
         out_y[i] = y
     return 0
