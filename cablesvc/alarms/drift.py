@@ -123,6 +123,23 @@ def _start(S, i, t, base):
 
 
 @_jit_inline
+def _cusum_side(S, i, t, inc, z, dt, c, c_t0, c_sz, c_st):
+    """One side of the two-sided CUSUM of cable i: S[c] += inc, floored at 0 (then the
+    run restarts at t); while it runs, the residual integral S[c_sz] and duration S[c_st]
+    give the run's mean offset."""
+    v = S[c, i] + inc
+    if v <= 0.0:
+        S[c, i] = 0.0
+        S[c_t0, i] = t
+        S[c_sz, i] = 0.0
+        S[c_st, i] = 0.0
+    else:
+        S[c, i] = v
+        S[c_sz, i] += z * dt
+        S[c_st, i] += dt
+
+
+@_jit_inline
 def _drift_sample(S, P, t, r, i, E, ne, row):
     """One sample r [N] of cable i at time t [s]; appends raise/clear records to E[ne:].
     Returns the new number of records."""
@@ -151,26 +168,8 @@ def _drift_sample(S, P, t, r, i, E, ne, row):
     elif zc < -clip:
         zc = -clip
     k = P[_P_K]
-    cu = S[_CU, i] + (zc - k) * dt
-    if cu <= 0.0:
-        S[_CU, i] = 0.0
-        S[_CU_T0, i] = t
-        S[_CU_SZ, i] = 0.0
-        S[_CU_ST, i] = 0.0
-    else:
-        S[_CU, i] = cu
-        S[_CU_SZ, i] += z * dt
-        S[_CU_ST, i] += dt
-    cl = S[_CL, i] + (-zc - k) * dt
-    if cl <= 0.0:
-        S[_CL, i] = 0.0
-        S[_CL_T0, i] = t
-        S[_CL_SZ, i] = 0.0
-        S[_CL_ST, i] = 0.0
-    else:
-        S[_CL, i] = cl
-        S[_CL_SZ, i] += z * dt
-        S[_CL_ST, i] += dt
+    _cusum_side(S, i, t, (zc - k) * dt, z, dt, _CU, _CU_T0, _CU_SZ, _CU_ST)     # upper: offsets > k
+    _cusum_side(S, i, t, (-zc - k) * dt, z, dt, _CL, _CL_T0, _CL_SZ, _CL_ST)    # lower: offsets < -k
     h = P[_P_H]
     if S[_ACTIVE, i] == 0.0:
         if S[_CU, i] > h or S[_CL, i] > h:
