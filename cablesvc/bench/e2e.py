@@ -272,14 +272,19 @@ def run_e2e_bench(rate: float = 1000.0, seconds: float = 60.0, *, robot: str = "
     return result
 
 
-def add_parser(sub) -> argparse.ArgumentParser:
-    p = sub.add_parser("e2e", help="end-to-end latency: controller process -> daemon -> Zenoh subscriber",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def add_setup_options(p: argparse.ArgumentParser) -> None:
+    """Options of the three-process set-up shared by ``bench e2e`` and ``bench soak``."""
     p.add_argument("--rate", type=float, default=1000.0, help="controller tick rate in Hz (default 1000)")
-    p.add_argument("--seconds", type=float, default=60.0, help="length of the measured run (default 60)")
     p.add_argument("--robot", default="ipanema3")
     p.add_argument("--classic", action="store_true", help="classic CAN frames instead of CAN FD")
     p.add_argument("--encoding", choices=["json", "compact"], default="json")
+
+
+def add_parser(sub) -> argparse.ArgumentParser:
+    p = sub.add_parser("e2e", help="end-to-end latency: controller process -> daemon -> Zenoh subscriber",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_setup_options(p)
+    p.add_argument("--seconds", type=float, default=60.0, help="length of the measured run (default 60)")
     p.add_argument("--baseline-seconds", type=float, default=10.0, help="Zenoh-only baseline length (0: skip)")
     p.add_argument("--json", action="store_true", help="one JSON object")
     p.set_defaults(func=cmd_e2e)

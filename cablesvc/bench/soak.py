@@ -33,7 +33,7 @@ import threading
 import time
 from typing import Any, Callable, Optional
 
-from cablesvc.bench.e2e import _percentiles, run_three_processes
+from cablesvc.bench.e2e import _percentiles, add_setup_options, run_three_processes
 
 __all__ = ["add_parser", "cmd_soak", "read_rss_mb", "run_soak_bench"]
 
@@ -189,11 +189,8 @@ def run_soak_bench(rate: float = 1000.0, minutes: float = 30.0, *, robot: str = 
 def add_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser("soak", help="long end-to-end run: RSS, missed ticks and latency per minute",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--rate", type=float, default=1000.0, help="controller tick rate in Hz (default 1000)")
+    add_setup_options(p)
     p.add_argument("--minutes", type=float, default=30.0, help="length of the run in minutes (default 30)")
-    p.add_argument("--robot", default="ipanema3")
-    p.add_argument("--classic", action="store_true", help="classic CAN frames instead of CAN FD")
-    p.add_argument("--encoding", choices=["json", "compact"], default="json")
     p.add_argument("--rss-interval", type=float, default=2.0, help="seconds between RSS samples (default 2)")
     p.add_argument("--json", action="store_true", help="one JSON object")
     p.set_defaults(func=cmd_soak)
