@@ -123,30 +123,33 @@ class AmplitudeDependent(CableModel):
             res[..., j] = np.stack([np.interp(ug, grid, row) for row in flat]).reshape(lanes, cables, G)
         res[..., 4] *= damping_normaliser(res[..., 5])
         self._amin = float(lo)
-        self._inv_da = (G - 1) / (hi - lo) if nA > 1 else 0.0
-        self._shift = lo * self._inv_da - 0.5          # u = A*inv_da - shift, index = floor(u)
-        self._umax = (G - 1) + 0.25
         LC = lanes * cables
-        # column-major flat table: entry (j, lane*cables + cable, g) at j*LC*G + (lane*cables + cable)*G + g;
-        # lookups are 1-D np.take calls on it, which numpy does without temporaries
-        self._tab = np.ascontiguousarray(np.moveaxis(res, -1, 0).reshape(ncol, LC, G)).reshape(-1)
-        self._base = (np.arange(ncol)[:, None] * (LC * G) + np.arange(LC)[None, :] * G).astype(np.intp)
-        self._rep6 = np.repeat(np.arange(LC, dtype=np.intp)[None, :], ncol, axis=0)
-        self._rep4 = np.repeat(np.arange(LC, dtype=np.intp)[None, :], 4, axis=0)
+        inv_da = (G - 1) / (hi - lo) if nA > 1 else 0.0
+        self._inv_da = inv_da
+        # table (column, lane*cables*G + cable*G + g): one np.take along axis 1 with the flat
+        # row index reads all six columns of every cable at once, into contiguous rows
+        self._tab = np.ascontiguousarray(np.moveaxis(res, -1, 0).reshape(ncol, LC * G))
+        # u = A * inv_da - shift[c] is the row index in that table (nearest grid point:
+        # shift = lo * inv_da - 0.5 - c * G); u <= umax[c] keeps it inside the cable's block
+        # (A is clamped to >= lo first, so u >= c * G + 0.5)
+        sh = self.shape
+        rows0 = (np.arange(LC, dtype=np.float64) * G).reshape(sh)
+        self._shift = lo * inv_da - 0.5 - rows0
+        self._umax = rows0 + (G - 1) + 0.25
         # scratch: every operand has the step's shape, so no ufunc broadcasts (broadcasting
         # with out= makes numpy allocate iterator buffers)
-        sh = self.shape
         e = lambda: np.empty(sh)
-        self._dx, self._nd, self._m, self._e, self._u, self._xi, self._p, self._r, self._aeff = (
-            e(), e(), e(), e(), e(), e(), e(), e(), e())
+        self._dx, self._nd, self._e, self._u, self._xi, self._p, self._r, self._aeff = (
+            e(), e(), e(), e(), e(), e(), e(), e())
+        self._rev = np.empty(sh, dtype=bool)
+        self._rev4 = np.empty((4,) + sh, dtype=bool)
+        self._rep4 = np.repeat(np.arange(LC, dtype=np.intp)[None, :], 4, axis=0)
         self._idx = np.empty(sh, dtype=np.intp)
-        self._idx6 = np.empty((ncol, LC), dtype=np.intp)
         self._vals = np.empty((ncol, LC))
         self._new = np.empty((4,) + sh)
-        self._m4 = np.empty((4,) + sh)
         self._cols = [self._vals[j].reshape(sh) for j in range(ncol)]
         # flat views made once (a reshape per step would allocate a view object)
-        self._m_flat, self._m4_flat, self._idx_flat = self._m.reshape(-1), self._m4.reshape(4, -1), self._idx.reshape(-1)
+        self._rev_flat, self._rev4_flat, self._idx_flat = self._rev.reshape(-1), self._rev4.reshape(4, -1), self._idx.reshape(-1)
 
     def create_state(self, x0=0.0) -> AmplitudeState:
         x0a = self._x0(x0)
@@ -160,42 +163,35 @@ class AmplitudeDependent(CableModel):
 
     def step(self, state: AmplitudeState, x, dt, l0=None):
         sub, mul, add = np.subtract, np.multiply, np.add
-        dx, nd, m, e, r = self._dx, self._nd, self._m, self._e, self._r
+        dx, nd, e, r = self._dx, self._nd, self._e, self._r
         mem, new = state.memory, self._new
-        ext, A, T, t_rev = mem[0], mem[1], mem[2], mem[3]
+        A, T = mem[1], mem[2]
         t_prev = float(state.clock[0])
         state.clock[0] = t_prev + dt
         sub(x, state.x_prev, dx)
         update_direction(dx, state.direction, nd)       # sgn(v) with memory
-        # m = 1 at a reversal (old and new direction differ), else 0
-        mul(state.direction, nd, m)
-        mul(m, -0.5, m)
-        add(m, 0.5, m)
-        # at a reversal (the previous sample is the turning point):
-        #   A <- |x_prev - last reversal point| / 2, half period <- t_prev - t_rev,
-        #   last reversal point <- x_prev, t_rev <- t_prev; all four as one blend
-        sub(state.x_prev, ext, e)
+        # at a reversal (old and new direction differ; the previous sample is the turning
+        # point): A <- |x_prev - last reversal point| / 2, half period <- t_prev - t_rev,
+        # last reversal point <- x_prev, t_rev <- t_prev; all four as one masked copy
+        np.not_equal(state.direction, nd, self._rev)
+        sub(state.x_prev, mem[0], e)
         np.absolute(e, new[1])
         mul(new[1], 0.5, new[1])
         np.copyto(new[0], state.x_prev)
-        sub(t_prev, t_rev, new[2])
+        sub(t_prev, mem[3], new[2])
         new[3].fill(t_prev)
-        np.take(self._m_flat, self._rep4, out=self._m4_flat, mode="clip")
-        sub(new, mem, new)
-        mul(new, self._m4, new)
-        add(mem, new, mem)
+        np.take(self._rev_flat, self._rep4, out=self._rev4_flat, mode="clip")
+        np.copyto(mem, new, where=self._rev4)
         # A not below the table's smallest amplitude
         aeff = self._aeff
         np.maximum(A, self._amin, out=aeff)
-        # table lookup at A: nearest point of the uniform grid
+        # table lookup at A: nearest point of the uniform grid, all six columns in one take
         u, idx = self._u, self._idx
         mul(aeff, self._inv_da, u)
         sub(u, self._shift, u)
         np.minimum(u, self._umax, out=u)
         np.copyto(idx, u, casting="unsafe")             # truncation = floor (u >= 0)
-        np.take(self._idx_flat, self._rep6, out=self._idx6, mode="clip")
-        add(self._idx6, self._base, self._idx6)
-        np.take(self._tab, self._idx6, out=self._vals, mode="clip")
+        np.take(self._tab, self._idx_flat, axis=1, out=self._vals, mode="clip")
         K0, K1, K2, K3, Sq, alpha = self._cols
         # polynomial spring part (Horner)
         xi, p = self._xi, self._p
