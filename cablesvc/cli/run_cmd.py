@@ -11,8 +11,9 @@ import sys
 import threading
 import time
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 DESCRIPTION = """\
 Run the live cable-force predictor beside a robot controller.
@@ -33,6 +34,16 @@ and --zenoh-config FILE for a router, TLS or access control (deploy/zenoh-router
 Key expressions: cablesvc/<robot>/forces, cablesvc/<robot>/alarms, cablesvc/<robot>/status
 (queryable), cablesvc/<robot>/alive (liveliness). SIGINT/SIGTERM shut down cleanly; the
 hysteresis state is snapshotted every few seconds and at shutdown and restored at start.
+
+Several robots in one daemon (a fleet): a --config file with [[robots]] tables, one per
+robot, each with its own robot, params, [robots.source], record, snapshot, [robots.alarms];
+the Zenoh keys (zenoh_config, listen, connect, encoding) sit at the top and are shared: one
+Zenoh session, each robot under its own cablesvc/<robot>/... keys, one loop thread per
+robot (a fault in one robot's input never stops the others). Robot names must be unique.
+Per-robot flags (--robot, --source, --replay, --record, --snapshot, ...) do not apply to a
+fleet config; the shared ones (--listen, --connect, --zenoh-config, --encoding,
+--no-snapshot, --snapshot-interval, --wait-subscriber, --seconds, --no-view) do.
+Example: deploy/fleet.example.toml.
 """
 
 EPILOG = """\
@@ -42,6 +53,7 @@ examples:
   cablesvc run --source modbus --host 192.168.1.20 --port 502 --no-view
   cablesvc run --source replay --replay rec.mcap --speed 0 --record out.mcap --no-view
   cablesvc run --config daemon.toml                     all of the above from a TOML file
+  cablesvc run --config fleet.toml --no-view            several robots, one [[robots]] table each
 """
 
 
@@ -49,7 +61,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="run the live daemon (embedded simulated controller by default)",
                        description=DESCRIPTION, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     r.add_argument("--config", help="daemon TOML file: keys robot, params, zenoh_config, listen, record, snapshot, "
-                                    "and tables [source], [alarms]; command-line flags override it")
+                                    "and tables [source], [alarms]; command-line flags override it. "
+                                    "A fleet config (several robots in one daemon) has shared zenoh_config, listen, "
+                                    "connect, encoding and one [[robots]] table per robot "
+                                    "(deploy/fleet.example.toml)")
     r.add_argument("--robot", help="robot name or .toml path (default: ipanema3)")
     r.add_argument("--params", help="cable-model parameter file from `cablesvc identify` "
                                     "(default: nominal amplitude model from the robot's EA)")
@@ -74,7 +89,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     g.add_argument("--loop", action="store_true", help="replay: start again at the end")
     g.add_argument("--scenario", default=None, help="sim: twin scenario (default trajectory)")
     g.add_argument("--rate", type=float, default=None, help="sim: controller tick rate in Hz (default 1000)")
-    g.add_argument("--seed", type=int, default=0, help="sim: seed of the simulated controller")
+    g.add_argument("--seed", type=int, default=None, help="sim: seed of the simulated controller (default 0)")
     o = r.add_argument_group("outputs")
     o.add_argument("--zenoh-config", help="Zenoh JSON5 config (router, TLS, access control); default: loopback peer")
     o.add_argument("--listen", action="append", help="Zenoh listen endpoint (default tcp/127.0.0.1:7447)")
@@ -117,6 +132,23 @@ def nominal_params(geom):
     return default_params(geom.ea, L, "amplitude")
 
 
+def _sim_controller(robot, src: dict[str, Any], *, scenario: str | None, rate: float | None, seed: int | None,
+                    channel: str):
+    """The embedded default: a simulated controller (not started) on a virtual CAN bus, and
+    the CAN source config that reads that bus: (controller, source dict)."""
+    from cablesvc.sources.controller import CanController
+
+    bus = {"interface": src.get("interface") or "virtual", "channel": channel}
+    # 10 s of twin motion, played forwards and backwards without end
+    fd = src.get("fd", True) is not False          # 1 kHz needs the FD layout (docs/sources.md)
+    src = {**src, "fd": fd}
+    controller = CanController(robot, bus, dbc=src.get("dbc"), scenario=scenario or "trajectory",
+                               rate=rate or 1000.0, seed=seed or 0, duration=10.0, fd=fd)
+    # the controller thread shares the interpreter: allow it to be held off by the GIL mid-tick
+    return controller, {"kind": "can", "interface": bus["interface"], "channel": channel, "deadline_s": 0.05,
+                        **{k: v for k, v in src.items() if k in ("dbc", "deadline_s", "fd")}}
+
+
 def source_config(args, cfg: dict[str, Any], robot_name: str) -> dict[str, Any]:
     """Merge the [source] table of the config file with the command-line flags."""
     src = dict(cfg.get("source", {}))
@@ -142,6 +174,189 @@ def source_config(args, cfg: dict[str, Any], robot_name: str) -> dict[str, Any]:
     if kind == "replay" and not src.get("path"):
         raise SystemExit("cablesvc run: --source replay needs --replay FILE")
     return src
+
+
+# ---- fleet configs: several robots in one daemon ---------------------------------------
+
+FLEET_SHARED_KEYS = ("zenoh_config", "listen", "connect", "encoding")
+FLEET_ROBOT_KEYS = ("robot", "params", "source", "record", "snapshot", "snapshot_interval", "alarms")
+# the embedded simulated controller, per robot of a fleet (each on its own virtual CAN bus)
+FLEET_SIM_KEYS = ("kind", "fd", "dbc", "scenario", "rate", "seed")
+# flags that configure one robot: in a fleet config each [[robots]] entry says these
+_PER_ROBOT_FLAGS = (("robot", "--robot"), ("params", "--params"), ("source", "--source"),
+                    ("interface", "--interface"), ("channel", "--channel"), ("bitrate", "--bitrate"),
+                    ("fd", "--fd"), ("dbc", "--dbc"), ("deadline", "--deadline"), ("host", "--host"),
+                    ("port", "--port"), ("unit", "--unit"), ("register_map", "--register-map"),
+                    ("poll_rate", "--poll-rate"), ("replay", "--replay"), ("speed", "--speed"),
+                    ("scenario", "--scenario"), ("rate", "--rate"), ("seed", "--seed"), ("record", "--record"),
+                    ("snapshot", "--snapshot"))
+
+
+class FleetConfigError(ValueError):
+    """A fleet config (``[[robots]]``) that cannot be used; the message names the file and the
+    entry (``fleet.toml: robots[1].source.path: ...``)."""
+
+
+@dataclass
+class RobotPlan:
+    """One robot of a fleet, ready to start: its daemon options, its source (built, not
+    opened), its simulated controller (``kind = "sim"`` only) and its entry (``robots[i]``)."""
+
+    where: str
+    options: Any                 # DaemonOptions
+    source: Any = None
+    controller: Any = None
+
+
+def is_fleet_config(cfg: dict[str, Any]) -> bool:
+    """A config with ``[[robots]]`` tables describes several robots in one daemon."""
+    return "robots" in cfg
+
+
+def _endpoints_of(value: Any, where: str) -> tuple[str, ...]:
+    vals = [value] if isinstance(value, str) else value
+    if not isinstance(vals, list) or not all(isinstance(v, str) for v in vals):
+        raise FleetConfigError(f"{where}: expected a list of Zenoh endpoints like [\"tcp/127.0.0.1:7447\"], "
+                               f"got {value!r}")
+    return tuple(vals)
+
+
+def fleet_shared(args, cfg: dict[str, Any], file: str) -> dict[str, Any]:
+    """The shared Zenoh settings of a fleet config, command-line flags first:
+    ``zenoh_config_file``, ``listen``, ``connect`` (None: not given) and ``encoding``."""
+    listen = args.listen or (None if cfg.get("listen") is None else _endpoints_of(cfg["listen"], f"{file}: listen"))
+    connect = args.connect or (None if cfg.get("connect") is None
+                               else _endpoints_of(cfg["connect"], f"{file}: connect"))
+    zc = args.zenoh_config or cfg.get("zenoh_config")
+    if zc is not None and not isinstance(zc, str):
+        raise FleetConfigError(f"{file}: zenoh_config: expected a path to a Zenoh JSON5 file, got {zc!r}")
+    enc = args.encoding or cfg.get("encoding", "json")
+    if enc not in ("json", "compact"):
+        raise FleetConfigError(f"{file}: encoding: expected \"json\" or \"compact\", got {enc!r}")
+    return {"zenoh_config_file": zc, "listen": tuple(listen) if listen else None,
+            "connect": tuple(connect) if connect else None, "encoding": enc}
+
+
+def plan_fleet(args, cfg: dict[str, Any], file: str) -> tuple[dict[str, Any], list[RobotPlan]]:
+    """Check a fleet config and build what each robot needs: (shared Zenoh settings, plans).
+
+    Every problem is a :class:`FleetConfigError` naming ``file`` and the entry
+    (``robots[1].source.path: recording x.mcap not found``): unknown keys, Zenoh keys inside
+    an entry (they are shared), per-robot command-line flags, a bad robot / parameter /
+    source / alarms table, two entries with the same robot name, the same record or
+    snapshot file. Nothing is opened; simulated controllers are built (not started) only
+    once every entry is valid.
+    """
+    from cablesvc.alarms import AlarmConfig
+    from cablesvc.config import load_robot
+    from cablesvc.config.params import load_params
+    from cablesvc.service.daemon import DaemonOptions, default_snapshot_path
+    from cablesvc.service.fleet import duplicate_names
+    from cablesvc.sources import SourceConfigError, open_source
+
+    flags = [flag for attr, flag in _PER_ROBOT_FLAGS if getattr(args, attr, None) not in (None, False)]
+    if getattr(args, "loop", False):
+        flags.append("--loop")
+    if flags:
+        raise FleetConfigError(f"{file}: {', '.join(flags)} configure(s) one robot and do(es) not apply to a fleet "
+                               "config; set it in the [[robots]] entry")
+    for k in cfg:
+        if k in FLEET_ROBOT_KEYS:
+            raise FleetConfigError(f"{file}: {k}: belongs in each [[robots]] entry of a fleet config "
+                                   "(this file has [[robots]] tables)")
+        if k not in FLEET_SHARED_KEYS and k != "robots":
+            raise FleetConfigError(f"{file}: {k}: unknown key; a fleet config has {', '.join(FLEET_SHARED_KEYS)} "
+                                   "and [[robots]] tables")
+    entries = cfg["robots"]
+    if not isinstance(entries, list) or not entries or not all(isinstance(e, dict) for e in entries):
+        raise FleetConfigError(f"{file}: robots: expected one or more [[robots]] tables, got {entries!r}")
+    shared = fleet_shared(args, cfg, file)
+
+    plans: list[RobotPlan] = []
+    sims: list[tuple[int, dict[str, Any]]] = []
+    for i, e in enumerate(entries):
+        where = f"{file}: robots[{i}]"
+        for k in e:
+            if k in FLEET_SHARED_KEYS:
+                raise FleetConfigError(f"{where}.{k}: the Zenoh settings are shared by every robot; "
+                                       f"set {k} at the top of the file")
+            if k not in FLEET_ROBOT_KEYS:
+                raise FleetConfigError(f"{where}.{k}: unknown key; an entry has {', '.join(FLEET_ROBOT_KEYS)}")
+        if not isinstance(e.get("robot"), str) or not e["robot"]:
+            raise FleetConfigError(f"{where}.robot: missing or not a string (a robot name in robots/ or a path to "
+                                   "a robot .toml)")
+        try:
+            robot = load_robot(e["robot"])
+            geom = robot.geometry()
+        except Exception as ex:  # noqa: BLE001 - RobotFileError and friends: one message
+            raise FleetConfigError(f"{where}.robot: {ex}") from None
+        try:
+            params = load_params(e["params"]) if e.get("params") else nominal_params(geom)
+        except Exception as ex:  # noqa: BLE001 - ParamFileError lists every problem
+            raise FleetConfigError(f"{where}.params: {ex}") from None
+        if params.robot and params.robot != robot.name:
+            raise FleetConfigError(f"{where}.params: {params.source} was identified for robot {params.robot!r}, "
+                                   f"not {robot.name!r}")
+        src = e.get("source", {"kind": "sim"})
+        if not isinstance(src, dict):
+            raise FleetConfigError(f"{where}.source: expected a table ([robots.source]) with a kind, got {src!r}")
+        src = dict(src)
+        src.setdefault("kind", "sim")
+        source = None
+        if src["kind"] == "sim":
+            bad = sorted(set(src) - set(FLEET_SIM_KEYS))
+            if bad:
+                raise FleetConfigError(f"{where}.source.{bad[0]}: unknown for kind \"sim\" (the embedded simulated "
+                                       f"controller); it takes {', '.join(FLEET_SIM_KEYS)}")
+            sims.append((i, src))
+        else:
+            try:
+                source = open_source(robot, src)       # checks every field and the files it names; opens nothing
+            except SourceConfigError as ex:
+                raise FleetConfigError(f"{where}.{ex}") from None
+        alarm_cfg = None
+        if "alarms" in e:
+            try:
+                alarm_cfg = AlarmConfig.model_validate(e["alarms"])
+            except Exception as ex:  # noqa: BLE001 - pydantic's message names the field
+                raise FleetConfigError(f"{where}.alarms: {ex}") from None
+        interval = args.snapshot_interval or e.get("snapshot_interval", 5.0)
+        if isinstance(interval, bool) or not isinstance(interval, (int, float)) or not interval > 0:
+            raise FleetConfigError(f"{where}.snapshot_interval: expected seconds > 0, got {interval!r}")
+        snapshot = None
+        if not args.no_snapshot:
+            snapshot = Path(e.get("snapshot") or default_snapshot_path(robot.name))
+        record = Path(e["record"]) if e.get("record") else None
+        opts = DaemonOptions(robot=robot, params=params, source=src, encoding=shared["encoding"],
+                             zenoh_config_file=shared["zenoh_config_file"], listen=shared["listen"],
+                             connect=shared["connect"], record=record, snapshot=snapshot,
+                             snapshot_interval_s=float(interval), alarm_config=alarm_cfg,
+                             wait_subscriber_s=args.wait_subscriber)
+        plans.append(RobotPlan(where=f"robots[{i}]", options=opts, source=source))
+
+    for first, again, name in duplicate_names([p.options.robot.name for p in plans]):
+        raise FleetConfigError(f"{file}: robots[{again}].robot: robot name {name!r} is already used by "
+                               f"robots[{first}]; names must be unique (each robot publishes under "
+                               f"cablesvc/<name>/ and snapshots to its own file)")
+    for what in ("record", "snapshot"):
+        paths = [None if getattr(p.options, what) is None else os.path.abspath(getattr(p.options, what))
+                 for p in plans]
+        for first, again, path in duplicate_names(paths):
+            if path is not None:
+                raise FleetConfigError(f"{file}: robots[{again}].{what}: {path} is also robots[{first}]'s {what} "
+                                       "file; each robot needs its own")
+
+    for i, src in sims:
+        plan = plans[i]
+        try:
+            controller, can_src = _sim_controller(plan.options.robot, src, scenario=src.get("scenario"),
+                                                  rate=src.get("rate"), seed=src.get("seed"),
+                                                  channel=f"cablesvc-sim-{os.getpid()}-{plan.options.robot.name}")
+        except Exception as ex:  # noqa: BLE001 - no DBC for this robot, a bad scenario, ...: one line
+            raise FleetConfigError(f"{file}: {plan.where}.source (sim): {ex}") from None
+        plan.controller = controller
+        plan.options.source = can_src
+    return shared, plans
 
 
 class _StartupInterrupted(Exception):
@@ -173,6 +388,8 @@ def _cmd_run(args) -> int:
     logging.basicConfig(level=getattr(logging, str(args.log_level).upper(), logging.INFO),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     cfg = _load_config(args.config)
+    if is_fleet_config(cfg):
+        return _run_fleet(args, cfg, str(args.config))
     robot = load_robot(args.robot or cfg.get("robot") or "ipanema3")
     geom = robot.geometry()
     params_file = args.params or cfg.get("params")
@@ -184,18 +401,8 @@ def _cmd_run(args) -> int:
     src = source_config(args, cfg, robot.name)
     controller = None
     if src["kind"] == "sim":
-        # the embedded default: the simulated controller and the daemon share a virtual CAN bus
-        from cablesvc.sources.controller import CanController
-        channel = src.get("channel") or f"cablesvc-sim-{os.getpid()}"
-        bus = {"interface": src.get("interface") or "virtual", "channel": channel}
-        # 10 s of twin motion, played forwards and backwards without end
-        fd = src.get("fd", True) is not False          # 1 kHz needs the FD layout (docs/sources.md)
-        src["fd"] = fd
-        controller = CanController(robot, bus, dbc=src.get("dbc"), scenario=args.scenario or "trajectory",
-                                   rate=args.rate or 1000.0, seed=args.seed, duration=10.0, fd=fd)
-        # the controller thread shares the interpreter: allow it to be held off by the GIL mid-tick
-        src = {"kind": "can", "interface": bus["interface"], "channel": channel, "deadline_s": 0.05,
-               **{k: v for k, v in src.items() if k in ("dbc", "deadline_s", "fd")}}
+        controller, src = _sim_controller(robot, src, scenario=args.scenario, rate=args.rate, seed=args.seed,
+                                          channel=src.get("channel") or f"cablesvc-sim-{os.getpid()}")
     elif args.scenario or args.rate:
         print("cablesvc run: --scenario and --rate apply to --source sim only", file=sys.stderr)
         return 2
@@ -256,7 +463,7 @@ def _cmd_run(args) -> int:
                 if deadline is not None and time.monotonic() >= deadline:
                     stop.set()
         else:
-            _view(daemon, robot, geom, stop, worker, deadline)
+            _view([(daemon, robot, geom)], stop, worker.is_alive, deadline)
     finally:
         stop.set()
         t0 = time.monotonic()
@@ -270,38 +477,122 @@ def _cmd_run(args) -> int:
     return 0
 
 
-def _view(daemon, robot, geom, stop: threading.Event, worker: threading.Thread, deadline) -> None:
-    """Live terminal view of forces and alarms (main thread), refreshed eight times a second."""
+def _run_fleet(args, cfg: dict[str, Any], file: str) -> int:
+    """``cablesvc run --config fleet.toml``: several robots in one daemon (cablesvc.service.fleet).
+    Start-up is all or nothing; after it, SIGINT / SIGTERM stop every robot (each writes its
+    snapshot) and the process exits 0, or 1 when a robot's loop ended with an error."""
+    from cablesvc.service.fleet import Fleet, FleetError, FleetStartError
+
+    try:
+        shared, plans = plan_fleet(args, cfg, file)
+    except FleetConfigError as e:
+        print(f"cablesvc run: {e}", file=sys.stderr)
+        return 1
+    try:
+        fleet = Fleet([p.options for p in plans], zenoh_config_file=shared["zenoh_config_file"],
+                      listen=shared["listen"], connect=shared["connect"], sources=[p.source for p in plans])
+    except FleetStartError as e:
+        if isinstance(e.cause, _StartupInterrupted):
+            raise e.cause from None                  # SIGINT / SIGTERM while opening: exit 130 as usual
+        cause = str(e.cause).split(" at /")[0]
+        print(f"cablesvc run: {file}: robots[{e.index}] ({e.robot}): cannot start: {cause}", file=sys.stderr)
+        return 1
+    except FleetError as e:
+        print(f"cablesvc run: {file}: {e}", file=sys.stderr)
+        return 1
+    except Exception as e:  # noqa: BLE001 - the shared session: one clear line
+        if type(e).__module__.startswith("zenoh") or type(e).__name__ == "ZError":
+            where = shared["zenoh_config_file"] or f"listen {', '.join(shared['listen'] or ('tcp/127.0.0.1:7447',))}"
+            print(f"cablesvc run: cannot open the Zenoh session ({where}): {str(e).split(' at /')[0]}",
+                  file=sys.stderr)
+            return 1
+        raise
+    stop = threading.Event()
+
+    def on_signal(signum, frame):
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)          # from here on: a clean shutdown
+    signal.signal(signal.SIGTERM, on_signal)
+    log = logging.getLogger("cablesvc.run")
+    log.info("cablesvc fleet of %d robots (%s), zenoh %s", len(plans), ", ".join(fleet.names),
+             shared["zenoh_config_file"] or f"peer on {', '.join(shared['listen'] or ('tcp/127.0.0.1:7447',))}")
+    for p in plans:
+        d = fleet.daemons[p.options.robot.name]
+        log.info("%s: robot %s, source %s, model %s%s", p.where, d.name, json.dumps(p.options.source, default=str),
+                 p.options.params.model, f"; hysteresis state restored from {d.restored_from}" if d.restored_from
+                 else "")
+    controllers = [p.controller for p in plans if p.controller is not None]
+    deadline = None if args.seconds is None else time.monotonic() + args.seconds
+    try:
+        for c in controllers:
+            c.start()
+        fleet.start(stop)
+        if args.no_view:
+            while fleet.running() and not stop.is_set():
+                stop.wait(0.1)
+                if deadline is not None and time.monotonic() >= deadline:
+                    stop.set()
+        else:
+            _view([(fleet.daemons[n], fleet.daemons[n].robot, fleet.daemons[n].geom) for n in fleet.names], stop,
+                  lambda: bool(fleet.running()), deadline)
+    finally:
+        stop.set()
+        t0 = time.monotonic()
+        for c in controllers:
+            c.stop()
+        fleet.close()
+        elapsed = time.monotonic() - t0
+        statuses = fleet.status()
+        for name, st in statuses.items():
+            log.info("robot %s stopped in %.2f s after %d ticks; input %s; latency %s", name, elapsed, st["ticks"],
+                     json.dumps(st["input"]), json.dumps(st["latency_us"]))
+    failed = {n: st["fleet"]["error"] for n, st in statuses.items() if st["fleet"]["error"]}
+    for n, err in failed.items():
+        log.error("robot %s: its loop ended with an error: %s", n, err)
+    return 1 if failed else 0
+
+
+def _view(robots, stop: threading.Event, alive: Callable[[], bool], deadline) -> None:
+    """Live terminal view of forces and alarms (main thread), refreshed eight times a second:
+    one forces table per robot (``robots``: (daemon, robot, geometry) tuples) and the
+    active alarms of all of them. Runs while ``alive()`` and ``stop`` is not set."""
     import numpy as np
     from rich.console import Group
     from rich.live import Live
     from rich.table import Table
 
+    several = len(robots) > 1
+
     def render():
-        st = daemon.status()
-        v = daemon.view()
-        lat = st["latency_us"]
-        head = (f"cablesvc · {robot.name} · {st['input']['source']} · {st['tick_rate_hz']:.0f} Hz · "
-                f"{st['ticks']} ticks · latency p50/p99 {lat.get('p50_us', 0)}/{lat.get('p99_us', 0)} us · "
-                f"rejected {sum(st['input'].get('rejected', {}).values())}")
-        tb = Table(title=head, expand=False)
-        for col in ("cable", "predicted N", "measured N", "residual N", "elongation mm", "wrap deg", "slack"):
-            tb.add_column(col, justify="right")
-        if v is not None:
-            for i in range(geom.n_cables):
-                tb.add_row(geom.cable_names[i], f"{v['force'][i]:8.2f}", f"{v['measured'][i]:8.2f}",
-                           f"{v['residual'][i]:+7.2f}", f"{v['elongation'][i] * 1e3:7.3f}",
-                           f"{np.degrees(v['wrap_angle'][i]):6.1f}", "yes" if v["slack"][i] else "")
+        parts = []
         al = Table(title="active alarms", expand=False)
-        for col in ("code", "cable", "severity", "since s", "message"):
+        for col in (("robot",) if several else ()) + ("code", "cable", "severity", "since s", "message"):
             al.add_column(col)
-        for a in st["alarms_active"]:
-            al.add_row(a["code"], "" if a.get("cable") is None else geom.cable_names[a["cable"]], a["severity"],
-                       f"{a.get('since', 0):.2f}", a["message"])
-        return Group(tb, al)
+        for daemon, robot, geom in robots:
+            st = daemon.status()
+            v = daemon.view()
+            lat = st["latency_us"]
+            head = (f"cablesvc · {robot.name} · {st['input']['source']} · {st['tick_rate_hz']:.0f} Hz · "
+                    f"{st['ticks']} ticks · latency p50/p99 {lat.get('p50_us', 0)}/{lat.get('p99_us', 0)} us · "
+                    f"rejected {sum(st['input'].get('rejected', {}).values())}")
+            tb = Table(title=head, expand=False)
+            for col in ("cable", "predicted N", "measured N", "residual N", "elongation mm", "wrap deg", "slack"):
+                tb.add_column(col, justify="right")
+            if v is not None:
+                for i in range(geom.n_cables):
+                    tb.add_row(geom.cable_names[i], f"{v['force'][i]:8.2f}", f"{v['measured'][i]:8.2f}",
+                               f"{v['residual'][i]:+7.2f}", f"{v['elongation'][i] * 1e3:7.3f}",
+                               f"{np.degrees(v['wrap_angle'][i]):6.1f}", "yes" if v["slack"][i] else "")
+            parts.append(tb)
+            for a in st["alarms_active"]:
+                al.add_row(*((robot.name,) if several else ()), a["code"],
+                           "" if a.get("cable") is None else geom.cable_names[a["cable"]], a["severity"],
+                           f"{a.get('since', 0):.2f}", a["message"])
+        return Group(*parts, al)
 
     with Live(render(), refresh_per_second=8, transient=False) as live:
-        while worker.is_alive() and not stop.is_set():
+        while alive() and not stop.is_set():
             stop.wait(0.125)
             live.update(render())
             if deadline is not None and time.monotonic() >= deadline:

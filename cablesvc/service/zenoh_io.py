@@ -116,7 +116,11 @@ def _robot_of(key: str) -> str:
 class Publisher:
     """The daemon's outputs on Zenoh for one robot.
 
-    Opens a session with ``config``; declares the forces publisher (express, data-high
+    Opens a session with ``config``, or uses ``session``, an already open Zenoh session
+    shared with other publishers (one daemon process serving several robots,
+    :mod:`cablesvc.service.fleet`): a shared session belongs to whoever opened it, and
+    :meth:`close` then withdraws only this robot's declarations and leaves the session
+    open. Either way it declares the forces publisher (express, data-high
     priority, drop under congestion) and the alarms publisher (express, interactive-high
     priority, block under congestion), a queryable on the status key answering
     ``json(status())``, and a liveliness token on the alive key. ``encoding`` "json" or
@@ -125,8 +129,11 @@ class Publisher:
     encoding time when no client listens).
     """
 
-    def __init__(self, robot: str, config: zenoh.Config, *, encoding: str = "json",
-                 status: Callable[[], dict] | None = None, skip_unmatched: bool = True):
+    def __init__(self, robot: str, config: zenoh.Config | None = None, *, encoding: str = "json",
+                 status: Callable[[], dict] | None = None, skip_unmatched: bool = True,
+                 session: zenoh.Session | None = None):
+        if (config is None) == (session is None):
+            raise ValueError("Publisher needs exactly one of config (open a session) or session (share one)")
         if encoding not in ENCODINGS and encoding not in ENCODINGS.values():
             raise ValueError(f"encoding must be one of {sorted(ENCODINGS)}, got {encoding!r}")
         self.robot = robot
@@ -141,7 +148,9 @@ class Publisher:
         self.forces_skipped = 0
         self.alarms_published = 0
         self.status_queries = 0
-        self.session = zenoh.open(config)
+        #: whether :meth:`close` closes the session (it opened it) or leaves it to its owner
+        self.owns_session = session is None
+        self.session = zenoh.open(config) if session is None else session
         try:
             self._forces = self.session.declare_publisher(
                 k.forces, encoding=zenoh.Encoding(self._enc_str), express=True,
@@ -157,7 +166,10 @@ class Publisher:
             self._matching = self._forces.declare_matching_listener(self._on_matching)
             self._forces_matched = bool(self.subscribed("forces"))   # a change before the listener
         except BaseException:
-            self.session.close()
+            if self.owns_session:
+                self.session.close()
+            else:                          # a shared session stays open: withdraw what was declared
+                self._undeclare()
             raise
 
     def _on_query(self, query) -> None:
@@ -217,20 +229,26 @@ class Publisher:
         self._alarms.put(data)
         self.alarms_published += 1
 
-    def close(self) -> None:
-        """Withdraw the liveliness token, undeclare everything and close the session.
-        Idempotent; returns in milliseconds."""
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
+    def _undeclare(self) -> None:
         for obj in (getattr(self, "_matching", None), getattr(self, "_token", None), getattr(self, "_queryable", None),
                     getattr(self, "_alarms", None), getattr(self, "_forces", None)):
             if obj is not None:
                 try:
                     obj.undeclare()
-                except Exception:  # noqa: BLE001 - already gone
+                except Exception:  # noqa: BLE001 - already gone (or the session closed under us)
                     pass
+
+    def close(self) -> None:
+        """Withdraw the liveliness token, undeclare everything and close the session when
+        this publisher opened it (a shared ``session`` is left to its owner). Idempotent;
+        returns in milliseconds."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        self._undeclare()
+        if not self.owns_session:
+            return
         try:
             self.session.close()
         except Exception:  # noqa: BLE001
