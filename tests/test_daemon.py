@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -71,6 +70,7 @@ import time
 from cablesvc.recording import read_recording, write_recording
 from cablesvc.simulate import simulate_recording
 from cablesvc.sources.controller import free_tcp_port
+from reference import assert_matches_offline, offline_forces
 
 
 def _daemon(args: list[str], zport: int, tmp_path: Path, *, snapshot: Path | None = None) -> subprocess.Popen:
@@ -102,31 +102,6 @@ def _sigterm(proc: subprocess.Popen, timeout: float = 10.0) -> tuple[int, str]:
     return proc.returncode, err
 
 
-def _offline_forces(rec, params=None) -> dict[int, np.ndarray]:
-    """The kernel run offline over the same inputs: seq -> predicted forces."""
-    geom = load_robot("ipanema3").geometry()
-    pred = Predictor(geom, params or nominal_params(geom))
-    res = {}
-    for k in range(rec.n_ticks):
-        out = pred.tick(float(rec.t[k]), rec.motor_length[k],
-                        None if rec.position is None else rec.position[k],
-                        None if rec.orientation is None else rec.orientation[k],
-                        None if rec.force is None else rec.force[k],
-                        None if rec.temperature is None else float(rec.temperature[k]))
-        res[int(rec.seq[k])] = out.force.copy()
-    return res
-
-
-def _assert_matches_offline(forces: list[dict], offline: dict[int, np.ndarray]) -> int:
-    n = 0
-    for msg in forces:
-        ref = offline[msg["seq"]]
-        got = np.array(msg["force"], float)
-        np.testing.assert_allclose(got, ref, rtol=1e-9, atol=1e-9 * np.max(np.abs(ref)))
-        n += 1
-    return n
-
-
 def test_replay_daemon_publishes_what_the_offline_kernel_computes(tmp_path: Path):
     rec = simulate_recording("ipanema3", "trajectory", None, duration=4.0, rate=250.0, seed=3)
     path = tmp_path / "rec.mcap"
@@ -140,7 +115,7 @@ def test_replay_daemon_publishes_what_the_offline_kernel_computes(tmp_path: Path
     forces = _collect(sub, 60)
     code, err = _sigterm(d)
     assert code == 0, err
-    assert _assert_matches_offline(forces, _offline_forces(rec)) >= 250
+    assert assert_matches_offline(forces, offline_forces(rec)) >= 250
     # the --record file holds the inputs it ran on and the forces it published
     out = read_recording(tmp_path / "out.mcap")
     np.testing.assert_array_equal(out.motor_length, rec.motor_length[: out.n_ticks])
@@ -167,7 +142,7 @@ def test_snapshot_at_sigterm_is_restored_and_the_hysteresis_continues(tmp_path: 
     assert code == 0, err
     assert "restored" in err
     # forces after the restart equal one uninterrupted offline run over both halves
-    assert _assert_matches_offline(forces, _offline_forces(rec)) >= 40
+    assert assert_matches_offline(forces, offline_forces(rec)) >= 40
 
 
 def test_modbus_controller_to_subscriber(tmp_path: Path):
@@ -192,7 +167,7 @@ def test_modbus_controller_to_subscriber(tmp_path: Path):
     for k in range(out.n_ticks):                        # ...is what the controller sent
         np.testing.assert_allclose(out.motor_length[k], sent[int(out.seq[k])].motor_length, rtol=0,
                                    atol=0.5e-7 + 1e-12)   # register resolution 0.1 um
-    assert _assert_matches_offline(forces, _offline_forces(out)) >= 100
+    assert assert_matches_offline(forces, offline_forces(out)) >= 100
 
 
 def test_can_controller_in_another_process_to_subscriber(tmp_path: Path):
@@ -222,15 +197,13 @@ def test_can_controller_in_another_process_to_subscriber(tmp_path: Path):
     idx = {int(s): k for k, s in enumerate(sent.seq)}
     for k in range(out.n_ticks):                        # received = sent, within the DBC resolution (10 nm)
         np.testing.assert_allclose(out.motor_length[k], sent.motor_length[idx[int(out.seq[k])]], rtol=0, atol=1e-8)
-    assert _assert_matches_offline(forces, _offline_forces(out)) >= 150
+    assert assert_matches_offline(forces, offline_forces(out)) >= 150
 
 
 def test_bad_ticks_in_a_replay_are_rejected_counted_alarmed_and_the_rest_published(tmp_path: Path):
     """A CSV with a NaN length, a tick going back in time and a duplicate seq: each is
     rejected with its reason, counted in status, raises input_fault; every good tick still
     produces exactly one forces message."""
-    from cablesvc.recording import read_recording as rr
-
     rec = simulate_recording("ipanema3", "hold-sine", None, duration=1.0, rate=200.0, seed=2)
     good = tmp_path / "good.csv"
     write_recording(good, rec)
@@ -314,8 +287,8 @@ def test_kill_9_then_restart_resumes_from_the_last_snapshot(tmp_path: Path):
     code, err = _sigterm(d2)
     assert code == 0, err
     assert "restored" in err
-    uninterrupted = _offline_forces(rec)
-    cold = _offline_forces(rec.slice(k0, None))
+    uninterrupted = offline_forces(rec)
+    cold = offline_forces(rec.slice(k0, None))
     got = {m["seq"]: np.array(m["force"]) for m in forces}
     seqs = sorted(got)[:100]
     dev_restart = max(np.max(np.abs(got[q] - uninterrupted[q])) for q in seqs)
@@ -340,5 +313,5 @@ def test_subscriber_restart_while_the_daemon_runs(tmp_path: Path):
     code, err = _sigterm(d)
     assert code == 0, err
     assert min(m["seq"] for m in second) > max(m["seq"] for m in first)
-    offline = _offline_forces(rec)
-    assert _assert_matches_offline(first + second, offline) == 80
+    offline = offline_forces(rec)
+    assert assert_matches_offline(first + second, offline) == 80

@@ -27,31 +27,13 @@ import zenoh
 from cablesvc.cli.main import build_parser
 from cablesvc.cli.run_cmd import FleetConfigError, nominal_params, plan_fleet
 from cablesvc.config import load_robot
-from cablesvc.kernel import Predictor
 from cablesvc.recording import read_recording, write_recording
 from cablesvc.service.daemon import DaemonOptions, read_snapshot
 from cablesvc.service.fleet import Fleet, FleetError, FleetStartError
 from cablesvc.service.zenoh_io import Listener, Publisher, keys, make_config
 from cablesvc.simulate import simulate_recording
 from cablesvc.sources.controller import free_tcp_port
-
-
-def _offline_forces(robot: str, rec, skip: frozenset[int] = frozenset()) -> dict[int, np.ndarray]:
-    """The kernel run offline over the recording's inputs (ticks at ``skip`` indices left
-    out, as the daemon leaves out rejected ticks): seq -> predicted forces."""
-    geom = load_robot(robot).geometry()
-    pred = Predictor(geom, nominal_params(geom))
-    res = {}
-    for k in range(rec.n_ticks):
-        if k in skip:
-            continue
-        out = pred.tick(float(rec.t[k]), rec.motor_length[k],
-                        None if rec.position is None else rec.position[k],
-                        None if rec.orientation is None else rec.orientation[k],
-                        None if rec.force is None else rec.force[k],
-                        None if rec.temperature is None else float(rec.temperature[k]))
-        res[int(rec.seq[k])] = out.force.copy()
-    return res
+from reference import offline_forces
 
 
 def _csv_with_nan_length(good: Path, bad: Path, row: int) -> None:
@@ -85,8 +67,8 @@ def test_one_daemon_serves_two_robots_each_from_its_own_replay(tmp_path: Path):
     path_b = tmp_path / "planar4.csv"
     _csv_with_nan_length(good_b, path_b, bad_row)
     rec_b = read_recording(good_b)                 # what the daemon reads from the CSV, bit for bit
-    offline = {"ipanema3": _offline_forces("ipanema3", rec_a),
-               "planar4": _offline_forces("planar4", rec_b, skip=frozenset({bad_row}))}
+    offline = {"ipanema3": offline_forces(rec_a, "ipanema3"),
+               "planar4": offline_forces(rec_b, "planar4", skip=frozenset({bad_row}))}
     n_cables = {"ipanema3": 8, "planar4": 4}
 
     lport, dport = free_tcp_port(), free_tcp_port()

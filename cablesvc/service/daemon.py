@@ -350,9 +350,16 @@ class Daemon:
             lat.update(p50_us=h.get_value_at_percentile(50), p99_us=h.get_value_at_percentile(99),
                        p999_us=h.get_value_at_percentile(99.9), max_us=h.get_max_value())
         s = self.stats
+        # the loop (or the source's receive thread) changes these while a Zenoh thread runs
+        # this: read each once, so that a None set in between cannot fail the query
+        fault_alarm = self._fault_alarm
+        recorder = self.recorder
         counters = self.source.counters.as_dict()
         if s.kernel_errors:
+            # the source accepted these ticks but the kernel refused them: count them once,
+            # as rejected, so that accepted + rejected = ticks received still holds
             counters.setdefault("rejected", {})["kernel_error"] = s.kernel_errors
+            counters["accepted"] = counters.get("accepted", 0) - s.kernel_errors
         out = {
             "robot": self.name,
             "version": __version__,
@@ -360,6 +367,7 @@ class Daemon:
             "ticks": s.ticks,
             "published": getattr(self.publisher, "forces_published", s.published),
             "skipped_no_subscriber": getattr(self.publisher, "forces_skipped", 0),
+            "publish_errors": s.publish_errors,      # ticks (or alarms) whose put raised: not published
             "tick_rate_hz": round(self.tick_rate(), 3),
             "latency_us": lat,
             "input": {"source": self.opt.source.get("kind"), **counters},
@@ -369,14 +377,14 @@ class Daemon:
                       "fingerprint": self.fingerprint, "params": jsonable(self.params.params),
                       "identification": jsonable(self.params.identification)},
             "alarms_active": [e.payload() for e in self.alarms.active()]
-                             + ([self._fault_alarm.payload()] if self._fault_alarm is not None else []),
+                             + ([fault_alarm.payload()] if fault_alarm is not None else []),
             "snapshot": {"path": str(self.snapshot_path) if self.snapshot_path else None,
                          "restored_from": self.restored_from, "error": self.snapshot_error},
             "last": {"seq": s.last_seq, "t": s.last_t},
         }
-        if self.recorder is not None:
-            out["recording"] = {"path": str(self.opt.record), "written": self.recorder.written,
-                                "dropped": self.recorder.dropped, "error": self.recorder.error}
+        if recorder is not None:
+            out["recording"] = {"path": str(self.opt.record), "written": recorder.written,
+                                "dropped": recorder.dropped, "error": recorder.error}
         return out
 
     def view(self) -> dict[str, Any] | None:
