@@ -600,6 +600,45 @@ def test_can_controller_to_can_source_over_a_virtual_bus(robot, twin):
     src.close()  # idempotent
 
 
+def test_switching_to_a_sink_and_back_loses_no_tick_and_keeps_the_order(robot, twin):
+    """The daemon opens its source before it starts its loop, then switches the receive
+    thread to deliver straight to the kernel (set_sink), and back to the queue at the end.
+    Ticks accepted before the switch must come back from set_sink, ticks during a switch
+    must go either way but never nowhere, and the order must hold (the demo lost the
+    ticks queued before the switch: accepted exceeded processed)."""
+    channel = f"cablesvc-test-{time.monotonic_ns()}"
+    n = 600
+    src = open_source(robot, {"kind": "can", "interface": "virtual", "channel": channel, "deadline_s": 0.5})
+    ctl = CanController(robot, {"interface": "virtual", "channel": channel}, rate=1000.0, recording=twin)
+    got: list[int] = []
+    sunk: list[int] = []
+    with src:
+        ctl.start(ticks=n)
+        try:
+            deadline = time.monotonic() + 20
+            while src.counters.accepted < 100 and time.monotonic() < deadline:
+                time.sleep(0.005)
+            got += [t.seq for t in src.set_sink(lambda tk: sunk.append(tk.seq))]   # queued before the switch
+            assert len(got) >= 100
+            while len(sunk) < 200 and time.monotonic() < deadline:
+                time.sleep(0.005)
+            got += sunk[:]                  # copy before the switch back (the sink may still run once)
+            k = len(sunk)
+            assert src.set_sink(None) == []
+            got += sunk[k:]
+            while src.counters.accepted < n and time.monotonic() < deadline:
+                time.sleep(0.005)
+        finally:
+            ctl.stop()
+        while True:
+            tick = src.recv(timeout=0.5)
+            if tick is None:
+                break
+            got.append(tick.seq)
+    assert src.counters.accepted == n and not src.counters.rejected
+    assert got == list(range(n))
+
+
 def test_can_source_reopens_its_bus_after_a_bus_error(robot, twin):
     channel = f"cablesvc-test-{time.monotonic_ns()}"
     src = open_source(robot, {"kind": "can", "interface": "virtual", "channel": channel, "deadline_s": 0.5})

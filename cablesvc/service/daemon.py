@@ -511,7 +511,11 @@ class Daemon:
                 log.warning("no subscriber after %.1f s; starting anyway", self.opt.wait_subscriber_s)
         direct = self.opt.direct and hasattr(src, "set_sink")
         if direct:
-            src.set_sink(self._step_locked)
+            # ticks accepted since the source opened wait in its queue: step them first,
+            # holding the lock the sink takes, so that direct ticks follow them in order
+            with self._state_lock:
+                for tick in src.set_sink(self._step_locked):
+                    self.step(tick)
         try:
             while not stop.is_set():
                 if direct:
@@ -553,11 +557,22 @@ class Daemon:
             self.publisher = None
 
     def close(self) -> None:
-        """Stop the source, write the final snapshot, close the recording and Zenoh (< 2 s)."""
+        """Stop the source, process what it accepted before it stopped, write the final
+        snapshot, close the recording and Zenoh (< 2 s).
+
+        Between the end of :meth:`run` and the source's close, a receive thread can still
+        accept a tick or two (it queues them once the direct sink is gone). Each is stepped
+        and published here, so that every accepted tick has its output even at shutdown."""
         try:
             self.source.close()
         except Exception as e:  # noqa: BLE001
             log.error("closing the source failed: %s", e)
         with self._state_lock:
+            if hasattr(self.source, "set_sink"):          # queued ticks exist only for threaded sources
+                for _ in range(10_000):
+                    tick = self.source.recv(timeout=0)
+                    if tick is None:
+                        break
+                    self.step(tick)
             self.snapshot()
         self._close_outputs()

@@ -510,8 +510,9 @@ class ThreadedSource(Source):
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
         self._sink: Optional[Any] = None
+        self._sink_lock = threading.Lock()
 
-    def set_sink(self, sink: Optional[Any]) -> None:
+    def set_sink(self, sink: Optional[Any]) -> list[TickInput]:
         """Hand every valid tick to ``sink(tick)`` on the receive thread itself instead of
         queueing it for :meth:`recv` (None: back to the queue).
 
@@ -519,20 +520,41 @@ class ThreadedSource(Source):
         of microseconds, milliseconds on a loaded machine), which is what the live daemon
         wants. The sink must be quick and must not raise; an exception it raises is
         reported as ``sink_error`` and the tick counts as delivered.
+
+        Returns the ticks that were waiting in the queue, taken out atomically with the
+        switch: no tick is queued after them once a sink is set, so a caller that processes
+        them before letting the sink run (e.g. holding the lock the sink takes) sees every
+        accepted tick exactly once and in order.
         """
-        self._sink = sink
+        with self._sink_lock:
+            pending = []
+            while True:
+                try:
+                    pending.append(self._queue.get_nowait())
+                except queue.Empty:
+                    break
+            if sink is None:                      # back to queueing: keep the order
+                for tick in pending:
+                    self._queue.put_nowait(tick)
+                pending = []
+            self._sink = sink
+        return pending
 
     def _deliver(self, tick: TickInput) -> None:
         """Validate and queue a tick, or hand it to the sink (receive thread)."""
         if not self._admit(tick):
             return
-        sink = self._sink
-        if sink is not None:
-            try:
-                sink(tick)
-            except Exception as exc:  # noqa: BLE001 - the receive thread must survive
-                self._report("sink_error", f"tick seq {tick.seq}: the consumer failed: {exc!r}")
-            return
+        with self._sink_lock:                     # a tick is queued or sunk, never lost in a switch
+            sink = self._sink
+            if sink is None:
+                self._enqueue(tick)
+                return
+        try:
+            sink(tick)
+        except Exception as exc:  # noqa: BLE001 - the receive thread must survive
+            self._report("sink_error", f"tick seq {tick.seq}: the consumer failed: {exc!r}")
+
+    def _enqueue(self, tick: TickInput) -> None:
         while True:
             try:
                 self._queue.put_nowait(tick)
