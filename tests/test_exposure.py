@@ -95,3 +95,26 @@ def test_a_configured_wildcard_listener_is_seen(tmp_path):
     port = free_tcp_port()
     socks = _run_and_inspect(["--listen", f"tcp/0.0.0.0:{port}"], port, tmp_path)
     assert ("tcp", "0.0.0.0", port, "LISTEN") in exposed(socks)
+
+
+def test_no_private_keys_or_certificates_in_the_repository():
+    """deploy/ names where TLS material lives (/etc/cablesvc/tls); none is shipped."""
+    root = Path(__file__).resolve().parents[1]
+    found = []
+    for p in root.rglob("*"):
+        rel = p.relative_to(root)
+        if any(part.startswith(".") or part in ("build", "dist") or part.endswith(".egg-info")
+               for part in rel.parts) or not p.is_file():
+            continue
+        if p.suffix in (".pem", ".key", ".p12", ".pfx", ".crt"):
+            found.append(str(rel))
+            continue
+        if p.stat().st_size > 2_000_000:
+            continue
+        try:
+            text = p.read_text(errors="ignore")
+        except OSError:
+            continue
+        if "PRIVATE KEY-----" in text and p.name != "test_exposure.py":
+            found.append(str(rel))
+    assert found == []
