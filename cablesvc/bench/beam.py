@@ -14,6 +14,15 @@
    ``psi_error``/``delta_error``/``mse_percent`` are those of the final (polished)
    estimate (``errors_are`` says so); the PSO-only ones are under ``pso_only``.
 
+Diagnostics, computed after the identification (which never sees the truth):
+``truth_mse_percent`` (eq 25 at the truth on the same data) and ``optimisation_ok`` (final
+MSE at or below it: the optimiser found the least-squares minimum); ``psi_stderr``,
+``delta_stderr``, ``rel_stderr``, ``psi_delta_correlation`` (polish Jacobian at the
+estimate), ``product_error``/``product_stderr`` (psi delta = EJ_e / EJ) and
+``within_2_stderr``. At 1 % noise the standard errors of psi and delta are 2.3-3.1 %, so
+the 2 % target fails for some noise realisations however well the optimum is found
+(docs/beam.md).
+
 Targets (issue 5): PSO <= 180 s on 2 cores; |psi_error|, |delta_error| <= 2 %; MSE at or
 below Table 3 of 000 (0.40-0.50 %). Exit code 1 when one is missed by the final estimate;
 ``passed`` and ``pso_only.passed`` in the JSON say which.
@@ -41,7 +50,7 @@ def run_bench(*, amplitudes: Any = PROTOCOL_MM, noise: float = 0.01, seed: int =
               progress: Any = None) -> dict:
     """``amplitudes`` in m (a float or a sequence); all loops are one test set, eq 25 is
     the mean of the per-loop eq-25 values."""
-    from cablesvc.beam.identify import identify_beam, protocol_tests
+    from cablesvc.beam.identify import LoopObjective, identify_beam, protocol_tests
     from cablesvc.beam.solver import ROPE_7x19, TABLE4, stabilised_loop
 
     amps = [float(a) for a in np.atleast_1d(amplitudes)]
@@ -56,6 +65,10 @@ def run_bench(*, amplitudes: Any = PROTOCOL_MM, noise: float = 0.01, seed: int =
     res = identify_beam(tests, particles=particles, iterations=iterations, seed=seed, progress=progress,
                         coords=coords, polish=polish)
     p = res["pso"] if polish else res
+    # diagnostics, computed AFTER the identification (which never sees the truth): eq 25 at
+    # the truth on the same noisy data and objective. An estimate at or below it means the
+    # optimiser did its job and the remaining error is the data's (noise), not the search's.
+    of_truth = float(LoopObjective(tests)(TABLE4.as_array()[None, :5])[0])
     floor = float(np.mean([100.0 * np.mean((te.f - te.info["f_clean"]) ** 2) / np.var(te.f) for te in tests]))
     pso_only = {"psi_error": float(p["rel_error"]["psi"]), "delta_error": float(p["rel_error"]["delta"]),
                 "mse_percent": float(p["mse_percent"]),
@@ -77,6 +90,10 @@ def run_bench(*, amplitudes: Any = PROTOCOL_MM, noise: float = 0.01, seed: int =
         "objective": "eq 25 of 000, mean over the loops of the test set",
         "coords": coords,
         "noise_floor_percent": floor,
+        "truth_mse_percent": 100.0 * of_truth,
+        "optimisation_ok": bool(res["mse_percent"] <= 100.0 * of_truth),
+        "product_error": float(res.x[0] * res.x[1] / (TABLE4.psi * TABLE4.delta) - 1.0),
+        **_statistics(res),
         "estimate": {k: float(v) for k, v in zip(NAMES, res.x)},
         "rel_error": {k: float(v) for k, v in res["rel_error"].items()},
         "truth": {k: float(v) for k, v in zip(NAMES, TABLE4.as_array())},
@@ -84,6 +101,25 @@ def run_bench(*, amplitudes: Any = PROTOCOL_MM, noise: float = 0.01, seed: int =
         "targets": {"pso_seconds": TARGET_PSO_SECONDS, "param_error": TARGET_PARAM_ERROR,
                     "mse_percent": TARGET_MSE_PERCENT},
     }
+
+
+def _statistics(res: Any) -> dict:
+    """Relative standard errors of psi, delta and psi delta from the polish's Jacobian
+    (cov = s^2 (J^T J)^-1 at the estimate), their correlation, and whether the errors are
+    within 2 standard errors. Empty without a polish."""
+    cov = res.get("covariance")
+    if cov is None or "rel_stderr" not in res:
+        return {}
+    x = np.asarray(res.get("polish_x", res.x), float)
+    cov = np.asarray(cov, float)
+    rs = res["rel_stderr"]
+    corr = float(np.asarray(res["correlation"])[0, 1])
+    # var(ln psi + ln delta) = var(ln psi) + var(ln delta) + 2 cov(ln psi, ln delta)
+    prod = float(np.sqrt(max(cov[0, 0] / x[0] ** 2 + cov[1, 1] / x[1] ** 2 + 2 * cov[0, 1] / (x[0] * x[1]), 0.0)))
+    e = res["rel_error"]
+    return {"psi_stderr": float(rs["psi"]), "delta_stderr": float(rs["delta"]), "psi_delta_correlation": corr,
+            "product_stderr": prod, "rel_stderr": {k: float(v) for k, v in rs.items()},
+            "within_2_stderr": bool(abs(e["psi"]) <= 2 * rs["psi"] and abs(e["delta"]) <= 2 * rs["delta"])}
 
 
 def passed(r: dict, pso_only: bool = False) -> bool:
@@ -125,6 +161,13 @@ def cmd_bench_beam(args: argparse.Namespace) -> int:
     con.print(f"least-squares polish ({r['polish_simulations']} simulations): {r['polish_seconds']:.1f} s")
     con.print(f"  final    : psi error {100 * r['psi_error']:+.2f} %, delta error {100 * r['delta_error']:+.2f} %, "
               f"MSE {r['mse_percent']:.4f} % (noise floor {r['noise_floor_percent']:.4f} %, Table 3: 0.40-0.50 %)")
+    if "psi_stderr" in r:
+        con.print(f"  noise-limited accuracy (Jacobian at the estimate): psi +/- {100 * r['psi_stderr']:.2f} %, "
+                  f"delta +/- {100 * r['delta_stderr']:.2f} % (correlation {r['psi_delta_correlation']:+.3f}); "
+                  f"psi delta error {100 * r['product_error']:+.2f} % +/- {100 * r['product_stderr']:.2f} %")
+    con.print(f"  eq 25 at the truth on the same data: {r['truth_mse_percent']:.4f} % "
+              + ("(estimate at or below it: optimisation OK)" if r["optimisation_ok"]
+                 else "(estimate ABOVE it: optimisation short)"))
     con.print("PASS" if ok else "FAIL")
     return 0 if ok else 1
 

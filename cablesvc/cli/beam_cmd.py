@@ -135,6 +135,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
                               "simulations": res.pso.nsim, "seconds": res.pso.seconds}
     if "rel_error" in res:
         report["rel_error"] = res.rel_error
+    if res.get("rel_stderr") is not None:
+        report["rel_stderr"] = res["rel_stderr"]      # noise-limited accuracy (polish Jacobian)
     if args.json:
         print(json.dumps(report, default=float))
         return 0
@@ -155,6 +157,10 @@ def cmd_identify(args: argparse.Namespace) -> int:
     con.print(tab)
     con.print(f"eq 25 MSE: {res.mse_percent:.4f} % (Table 3 of 000: 0.40-0.50 %); {res.nsim} beam simulations "
               f"in {res.seconds:.1f} s")
+    if res.get("rel_stderr") is not None:
+        rs = res["rel_stderr"]
+        con.print("standard errors from the polish's Jacobian (noise-limited accuracy): "
+                  + ", ".join(f"{k} {100 * v:.2f} %" for k, v in rs.items()))
     return 0
 
 
