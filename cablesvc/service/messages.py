@@ -300,8 +300,8 @@ def decode(data: bytes | bytearray | memoryview, encoding: str) -> dict[str, Any
     enc = _normalise(encoding)
     if enc == JSON_ENCODING:
         try:
-            out = json.loads(bytes(data))
-        except (UnicodeDecodeError, json.JSONDecodeError) as e:
+            out = orjson.loads(bytes(data))          # ~5x json.loads: a subscriber keeps up at 1 kHz
+        except orjson.JSONDecodeError as e:
             raise ValueError(f"not valid JSON: {e}") from None
         if not isinstance(out, dict):
             raise ValueError("JSON payload is not an object")
