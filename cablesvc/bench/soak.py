@@ -169,6 +169,15 @@ def run_soak_bench(rate: float = 1000.0, minutes: float = 30.0, *, robot: str = 
         per_minute.append(row)
     received = sum(len(s) for s in col.seqs.values())
     total = _percentiles(all_lat)
+    # where the missing ticks are: runs of consecutive seqs never received (first 50 runs)
+    got_all = set().union(*col.seqs.values()) if col.seqs else set()
+    runs: list[list[int]] = []
+    for q in range(sent):
+        if q not in got_all:
+            if runs and runs[-1][0] + runs[-1][1] == q:
+                runs[-1][1] += 1
+            elif len(runs) < 50:
+                runs.append([q, 1])
     return {
         "minutes": float(minutes), "rate_hz": float(rate), "robot": robot, "transport": "can-fd" if fd else "can",
         "encoding": encoding, "ticks": sent, "received": received, "missed": sent - received,
@@ -181,7 +190,12 @@ def run_soak_bench(rate: float = 1000.0, minutes: float = 30.0, *, robot: str = 
         "rss_warmup_s": warmup_s, "rss_warmup_rule": rule, "rss_interval_s": float(rss_interval),
         "rss_samples": [[round(s, 2), round(mb, 2)] for s, mb in samples],
         "per_minute": per_minute,
+        "missing_seq_runs": runs,
         "daemon_input": status.get("input"), "daemon_latency_us": status.get("latency_us"),
+        # the daemon's side: puts made (Zenoh does not count what it drops under congestion),
+        # ticks not put because no subscriber matched at that moment, puts that raised
+        "daemon_published": status.get("published"), "daemon_skipped": status.get("skipped_no_subscriber"),
+        "daemon_publish_errors": status.get("publish_errors"),
         "shutdown_s": round(shutdown_s, 3),
     }
 
