@@ -193,7 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
     bk.add_argument("--json", action="store_true", help="one JSON object per run")
     bk.add_argument("--no-baseline", action="store_true",
                     help="skip the machine baseline (a fixed numpy workload as long as the kernel, timed "
-                         "interleaved with the normal run: the p99 this machine gives such work)")
+                         "in blocks alternating with the normal run: the p99 this machine gives such work)")
     bk.add_argument("--cpu", type=int, help="pin the benchmark to this CPU (as a production deployment would)")
     bk.add_argument("--realtime", action="store_true", help="run at SCHED_FIFO priority 50 (needs CAP_SYS_NICE)")
     bk.set_defaults(func=cmd_bench_kernel)
