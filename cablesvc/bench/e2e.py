@@ -272,6 +272,16 @@ def run_e2e_bench(rate: float = 1000.0, seconds: float = 60.0, *, robot: str = "
     return result
 
 
+def run_with_progress(console, label: str, run: Callable[[Callable[[str, float], None]], Any]) -> Any:
+    """``run(progress)`` under a transient rich progress bar; ``progress(what, fraction)``
+    updates it. Shared by ``bench e2e`` and ``bench soak``."""
+    from rich.progress import Progress
+
+    with Progress(console=console, transient=True) as prog:
+        task = prog.add_task(label, total=1.0)
+        return run(lambda what, frac: prog.update(task, description=what, completed=frac))
+
+
 def add_setup_options(p: argparse.ArgumentParser) -> None:
     """Options of the three-process set-up shared by ``bench e2e`` and ``bench soak``."""
     p.add_argument("--rate", type=float, default=1000.0, help="controller tick rate in Hz (default 1000)")
@@ -297,13 +307,9 @@ def cmd_e2e(args) -> int:
         print(json.dumps(run_e2e_bench(args.rate, args.seconds, **kw)))
         return 0
     from rich.console import Console
-    from rich.progress import Progress
     from rich.table import Table
     con = Console()
-    with Progress(console=con, transient=True) as prog:
-        task = prog.add_task("e2e", total=1.0)
-        res = run_e2e_bench(args.rate, args.seconds,
-                            progress=lambda what, frac: prog.update(task, description=what, completed=frac), **kw)
+    res = run_with_progress(con, "e2e", lambda progress: run_e2e_bench(args.rate, args.seconds, progress=progress, **kw))
     tb = Table(title=f"end-to-end latency, {res['robot']}, {res['transport']}, {res['encoding']}, "
                      f"{res['rate_hz']:g} Hz for {res['seconds']:g} s (input stamp -> subscriber)")
     for c in ("run", "ticks", "missed", "p50 us", "p99 us", "p99.9 us", "max us"):

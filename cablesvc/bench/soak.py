@@ -33,7 +33,7 @@ import threading
 import time
 from typing import Any, Callable, Optional
 
-from cablesvc.bench.e2e import _percentiles, add_setup_options, run_three_processes
+from cablesvc.bench.e2e import _percentiles, add_setup_options, run_three_processes, run_with_progress
 
 __all__ = ["add_parser", "cmd_soak", "read_rss_mb", "run_soak_bench"]
 
@@ -220,13 +220,10 @@ def cmd_soak(args) -> int:
         print(json.dumps(run_soak_bench(args.rate, args.minutes, **kw)))
         return 0
     from rich.console import Console
-    from rich.progress import Progress
     from rich.table import Table
     con = Console()
-    with Progress(console=con, transient=True) as prog:
-        task = prog.add_task("soak", total=1.0)
-        res = run_soak_bench(args.rate, args.minutes,
-                             progress=lambda what, frac: prog.update(task, description=what, completed=frac), **kw)
+    res = run_with_progress(con, "soak", lambda progress: run_soak_bench(args.rate, args.minutes, progress=progress,
+                                                                          **kw))
     tb = Table(title=f"soak, {res['robot']}, {res['transport']}, {res['encoding']}, {res['rate_hz']:g} Hz for "
                      f"{res['minutes']:g} min (input stamp -> subscriber; daemon RSS)")
     for c in ("minute", "ticks", "missed", "p50 us", "p99 us", "p99.9 us", "max us", "RSS MB"):
