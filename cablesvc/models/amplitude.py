@@ -8,7 +8,7 @@ import numpy as np
 from scipy.special import gammaln
 
 from cablesvc.models.base import CableModel, ModelParameterError, ModelState
-from cablesvc.models.polynomial import update_direction
+from cablesvc.models.reversal import REVERSAL_DEADBAND, track_reversals
 
 TABLE_COLUMNS = ("K0", "K1", "K2", "K3", "S_a", "alpha")
 #: points of the uniform amplitude grid the tables are resampled on when the model is built
@@ -32,9 +32,10 @@ def damping_normaliser(alpha: np.ndarray) -> np.ndarray:
 @dataclass
 class AmplitudeState(ModelState):
     x_prev: np.ndarray
-    direction: np.ndarray
-    memory: np.ndarray         # (4, lanes, cables): last reversal point [m], amplitude A [m],
-                               # half period [s], time of the last reversal [s]
+    direction: np.ndarray      # sgn(v) with a dead-band: +1 rising, -1 falling
+    memory: np.ndarray         # (6, lanes, cables): last reversal point [m], amplitude A [m],
+                               # half period [s], time of the last reversal [s], running
+                               # extremum of the current half-cycle [m] and its time [s]
     clock: np.ndarray          # (1,) time since create_state [s]
 
     @property
@@ -71,16 +72,21 @@ class AmplitudeDependent(CableModel):
     A and w are estimated online from the last reversal points of the elongation:
     A = |last reversal point - the one before| / 2 and w = pi / (time between the last two
     reversals). Until two reversals have been seen, ``amplitude_init`` and
-    ``omega_init`` are used.
+    ``omega_init`` are used. A reversal is declared when the elongation has moved back by
+    more than ``reversal_deadband`` [m] from the extremum of the current half-cycle, and
+    the reversal point and time are that extremum's (:mod:`cablesvc.models.reversal`):
+    quantised or noisy elongations then neither flip sgn(v) nor corrupt A and w.
     """
 
     name = "amplitude"
-    param_names = ("x_center", "amplitude_init", "omega_init")
-    defaults = {"x_center": 0.0, "amplitude_init": 5e-4, "omega_init": 2 * np.pi * 0.5}
+    param_names = ("x_center", "amplitude_init", "omega_init", "reversal_deadband")
+    defaults = {"x_center": 0.0, "amplitude_init": 5e-4, "omega_init": 2 * np.pi * 0.5,
+                "reversal_deadband": REVERSAL_DEADBAND}
     param_docs = {
         "x_center": "elongation at the pretension working point, where xi = 0 [m]",
         "amplitude_init": "amplitude assumed before two reversals are seen [m]",
         "omega_init": "angular frequency assumed before two reversals are seen [rad/s]",
+        "reversal_deadband": "motion back from the last extremum that counts as a reversal [m]",
     }
 
     def __init__(self, shape=(1, 1), *, amplitudes, K0, K1, K2=0.0, K3=0.0, S_a=0.0, alpha=0.0, **params):
@@ -109,6 +115,8 @@ class AmplitudeDependent(CableModel):
             raise ModelParameterError("amplitude: S_a (loop area) must be >= 0")
         if np.any(tables["alpha"] < 0):
             raise ModelParameterError("amplitude: alpha must be >= 0")
+        if np.any(self.params["reversal_deadband"] < 0):
+            raise ModelParameterError("amplitude: reversal_deadband must be >= 0 [m]")
         self.amplitude_grid = grid
         self.tables = {k: np.array(v) for k, v in tables.items()}
         # uniform resampling, nearest-point lookup: with GRID_POINTS points the lookup error is
@@ -142,23 +150,26 @@ class AmplitudeDependent(CableModel):
         self._dx, self._nd, self._e, self._u, self._xi, self._p, self._r, self._aeff = (
             e(), e(), e(), e(), e(), e(), e(), e())
         self._rev = np.empty(sh, dtype=bool)
-        self._rev4 = np.empty((4,) + sh, dtype=bool)
-        self._rep4 = np.repeat(np.arange(LC, dtype=np.intp)[None, :], 4, axis=0)
+        self._newext = np.empty(sh, dtype=bool)
+        self._rev6 = np.empty((6,) + sh, dtype=bool)
+        self._rep6 = np.repeat(np.arange(LC, dtype=np.intp)[None, :], 6, axis=0)
         self._idx = np.empty(sh, dtype=np.intp)
         self._vals = np.empty((ncol, LC))
-        self._new = np.empty((4,) + sh)
+        self._new = np.empty((6,) + sh)
         self._cols = [self._vals[j].reshape(sh) for j in range(ncol)]
         # flat views made once (a reshape per step would allocate a view object)
-        self._rev_flat, self._rev4_flat, self._idx_flat = self._rev.reshape(-1), self._rev4.reshape(4, -1), self._idx.reshape(-1)
+        self._rev_flat, self._rev6_flat, self._idx_flat = self._rev.reshape(-1), self._rev6.reshape(6, -1), self._idx.reshape(-1)
 
     def create_state(self, x0=0.0) -> AmplitudeState:
         x0a = self._x0(x0)
         A0 = self.params["amplitude_init"]
-        mem = np.empty((4,) + self.shape)
+        mem = np.empty((6,) + self.shape)
         mem[0] = x0a - A0                               # last reversal point
         mem[1] = A0                                     # amplitude
         mem[2] = np.pi / self.params["omega_init"]      # half period
         mem[3] = 0.0                                    # time of the last reversal
+        mem[4] = x0a                                    # extremum of the current half-cycle
+        mem[5] = 0.0                                    # ... and its time
         return AmplitudeState(x_prev=x0a, direction=np.ones(self.shape), memory=mem, clock=np.zeros(1))
 
     def step(self, state: AmplitudeState, x, dt, l0=None):
@@ -168,20 +179,29 @@ class AmplitudeDependent(CableModel):
         A, T = mem[1], mem[2]
         t_prev = float(state.clock[0])
         state.clock[0] = t_prev + dt
+        t_now = t_prev + dt
         sub(x, state.x_prev, dx)
-        update_direction(dx, state.direction, nd)       # sgn(v) with memory
-        # at a reversal (old and new direction differ; the previous sample is the turning
-        # point): A <- |x_prev - last reversal point| / 2, half period <- t_prev - t_rev,
-        # last reversal point <- x_prev, t_rev <- t_prev; all four as one masked copy
-        np.not_equal(state.direction, nd, self._rev)
-        sub(state.x_prev, mem[0], e)
+        s_dir, ext = state.direction, mem[4]
+        track_reversals(x, s_dir, ext, self.params["reversal_deadband"], e, self._rev)
+        # the extremum's time: where x is a new extremum (moved back by exactly 0)
+        new[5].fill(t_now)
+        np.less_equal(e, 0.0, self._newext)
+        np.copyto(mem[5], new[5], where=self._newext)
+        # at a reversal the extremum is the turning point: A <- |extremum - last reversal
+        # point| / 2, half period <- t_extremum - t_rev, last reversal point <- extremum,
+        # t_rev <- t_extremum, and the new half-cycle's extremum starts at (x, t_now); all
+        # six rows as one masked copy
+        sub(ext, mem[0], e)
         np.absolute(e, new[1])
         mul(new[1], 0.5, new[1])
-        np.copyto(new[0], state.x_prev)
-        sub(t_prev, mem[3], new[2])
-        new[3].fill(t_prev)
-        np.take(self._rev_flat, self._rep4, out=self._rev4_flat, mode="clip")
-        np.copyto(mem, new, where=self._rev4)
+        np.copyto(new[0], ext)
+        sub(mem[5], mem[3], new[2])
+        np.copyto(new[3], mem[5])
+        np.copyto(new[4], x)
+        np.take(self._rev_flat, self._rep6, out=self._rev6_flat, mode="clip")
+        np.copyto(mem, new, where=self._rev6)
+        np.negative(s_dir, nd)
+        np.copyto(s_dir, nd, where=self._rev)
         # A not below the table's smallest amplitude
         aeff = self._aeff
         np.maximum(A, self._amin, out=aeff)
@@ -210,9 +230,8 @@ class AmplitudeDependent(CableModel):
         np.power(r, alpha, r)
         mul(r, Sq, r)
         np.divide(r, aeff, r)
-        mul(r, nd, r)
+        mul(r, s_dir, r)
         add(p, r, self.force)
-        np.copyto(state.direction, nd)
         np.copyto(state.x_prev, x)
         return self.force
 

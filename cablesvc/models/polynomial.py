@@ -7,26 +7,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from cablesvc.models.base import CableModel, ModelParameterError, ModelState
-
-#: elongation increment [m] below which the direction of motion is kept (a cable at rest
-#: stays on the branch it was on instead of snapping to g(x))
-DIRECTION_EPS = 1e-12
-
-
-def update_direction(dx: np.ndarray, direction: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """sgn(x') with memory: sign(dx) when |dx| > DIRECTION_EPS, else the previous direction.
-
-    Fixed-time form: sign(dx + direction * eps)."""
-    np.multiply(direction, DIRECTION_EPS, out)
-    np.add(dx, out, out)
-    np.sign(out, out)
-    return out
+from cablesvc.models.reversal import REVERSAL_DEADBAND, flip, track_reversals
 
 
 @dataclass
 class PolynomialState(ModelState):
-    x_prev: np.ndarray
-    direction: np.ndarray
+    extremum: np.ndarray       # running extremum of the current half-cycle [m]
+    direction: np.ndarray      # sgn(x') with a dead-band: +1 rising, -1 falling
 
 
 class PolynomialHysteresis(CableModel):
@@ -40,19 +27,23 @@ class PolynomialHysteresis(CableModel):
     is implemented.) ``xi = x - x_center`` [m]; a_i in N/m^i. ``degree`` n_p must be odd
     (n_g = n_p, n_h = n_p - 1).
 
-    sgn(x') is taken from the sign of the elongation increment; when the cable does not
-    move the previous direction is kept, so a cable at rest stays on its branch.
+    sgn(x') switches only when the elongation has moved back by more than
+    ``reversal_deadband`` [m] from the extremum of the current half-cycle
+    (:mod:`cablesvc.models.reversal`), so a cable at rest stays on its branch and
+    sensor or bus quantisation does not flip it.
     """
 
     name = "polynomial"
-    param_docs = {"x_center": "elongation the polynomial is centred on [m]"}
+    param_docs = {"x_center": "elongation the polynomial is centred on [m]",
+                  "reversal_deadband": "motion back from the last extremum that counts as a reversal [m]"}
 
     def __init__(self, shape=(1, 1), degree: int = 3, **params):
         if degree < 1 or degree % 2 == 0:
             raise ModelParameterError(f"polynomial: degree must be odd and >= 1, got {degree}")
         self.degree = int(degree)
-        self.param_names = tuple(f"a{i}" for i in range(degree + 1)) + ("x_center",)
-        self.defaults = {f"a{i}": 0.0 for i in range(degree + 1)} | {"x_center": 0.0}
+        self.param_names = tuple(f"a{i}" for i in range(degree + 1)) + ("x_center", "reversal_deadband")
+        self.defaults = {f"a{i}": 0.0 for i in range(degree + 1)} | {"x_center": 0.0,
+                                                                    "reversal_deadband": REVERSAL_DEADBAND}
         self.param_docs = {f"a{i}": f"coefficient of xi^{i} [N/m^{i}]" for i in range(degree + 1)} | dict(
             PolynomialHysteresis.param_docs)
         super().__init__(shape, **params)
@@ -60,17 +51,22 @@ class PolynomialHysteresis(CableModel):
         self._xi2 = np.empty(self.shape)
         self._g = np.empty(self.shape)
         self._h = np.empty(self.shape)
-        self._dx = np.empty(self.shape)
+        self._back = np.empty(self.shape)
+        self._rev = np.empty(self.shape, dtype=bool)
         self._odd = [self.params[f"a{i}"] for i in range(1, degree + 1, 2)]
         self._even = [self.params[f"a{i}"] for i in range(0, degree + 1, 2)]
 
+    def check_params(self) -> None:
+        if np.any(self.params["reversal_deadband"] < 0):
+            raise ModelParameterError("polynomial: reversal_deadband must be >= 0 [m]")
+
     def create_state(self, x0=0.0) -> PolynomialState:
-        return PolynomialState(x_prev=self._x0(x0), direction=np.ones(self.shape))
+        return PolynomialState(extremum=self._x0(x0), direction=np.ones(self.shape))
 
     def step(self, state: PolynomialState, x, dt, l0=None):
         xi, xi2, g, h = self._xi, self._xi2, self._g, self._h
-        np.subtract(x, state.x_prev, self._dx)
-        update_direction(self._dx, state.direction, state.direction)
+        track_reversals(x, state.direction, state.extremum, self.params["reversal_deadband"], self._back, self._rev)
+        flip(x, state.direction, state.extremum, self._rev, self._back)
         np.subtract(x, self.params["x_center"], xi)
         np.multiply(xi, xi, xi2)
         # g = xi * (a1 + xi^2 (a3 + xi^2 (...)))  (Horner in xi^2)
@@ -86,5 +82,4 @@ class PolynomialHysteresis(CableModel):
             np.add(h, a, h)
         np.multiply(h, state.direction, h)
         np.add(g, h, self.force)
-        np.copyto(state.x_prev, x)
         return self.force
