@@ -7,7 +7,7 @@ Two layouts ship (``docs/sources.md`` has the tables), both written by :func:`ma
 * ``CABLE_<i>`` (id 0x100 + i), one per cable: ``motor_length_<i>`` int32 at 10 nm [m],
   ``force_<i>`` int24 at 1 mN [N] (raw -2**23 = ``not_available``: no force sensor),
   ``tick_counter`` uint8;
-* ``PLATFORM_X/Y/Z`` (0x140-0x142): ``position_x/y/z`` int32 at 0.1 um [m] (raw -2**31 =
+* ``PLATFORM_X/Y/Z`` (0x140-0x142): ``position_x/y/z`` int32 at 10 nm [m] (raw -2**31 =
   ``not_available``: no pose), ``PLATFORM_X`` also ``temperature`` int16 at 0.01 deg C
   (raw -2**15 = ``not_available``), each with ``tick_counter``;
 * ``PLATFORM_QXY``/``PLATFORM_QZW`` (0x143, 0x144): ``orientation_qx..qw`` int28 at 1e-8
@@ -185,11 +185,11 @@ def _make_classic_dbc(robot: Robot) -> str:
               f"(no force sensor)"),
              counter])
         val.append(f'VAL_ {cid} force_{i} -8388608 "{NOT_AVAILABLE}" ;')
-    pos = "0|32@1- (1e-07,0) [-214.7483647|214.7483647]"
+    pos = "0|32@1- (1e-08,0) [-21.47483647|21.47483647]"
     for axis in "xyz":
         name = f"PLATFORM_{axis.upper()}"
         sigs = [(f"position_{axis}", pos, "m",
-                 f"platform reference point {axis}, world frame, m, resolution 0.1 um; "
+                 f"platform reference point {axis}, world frame, m, resolution 10 nm; "
                  f"raw -2147483648 = not_available (no pose this tick)")]
         if axis == "x":
             sigs.append(("temperature", "32|16@1- (0.01,0) [-327.67|327.67]", "degC",
@@ -300,13 +300,13 @@ def _make_fd_dbc(robot: Robot) -> str:
             f"cables {cables[0]}-{cables[-1]}: winch motor lengths and measured forces, once per tick",
             [counter] + cable_signals(cables, 8, cid))
     pose = [
-        ("position_x", "8|32@1- (1e-07,0) [-214.7483647|214.7483647]", "m",
-         "platform reference point x, world frame, m, resolution 0.1 um; raw -2147483648 = not_available "
+        ("position_x", "8|32@1- (1e-08,0) [-21.47483647|21.47483647]", "m",
+         "platform reference point x, world frame, m, resolution 10 nm; raw -2147483648 = not_available "
          "(no pose this tick)"),
-        ("position_y", "40|32@1- (1e-07,0) [-214.7483647|214.7483647]", "m",
-         "platform reference point y, m, resolution 0.1 um; raw -2147483648 = not_available"),
-        ("position_z", "72|32@1- (1e-07,0) [-214.7483647|214.7483647]", "m",
-         "platform reference point z, m, resolution 0.1 um; raw -2147483648 = not_available"),
+        ("position_y", "40|32@1- (1e-08,0) [-21.47483647|21.47483647]", "m",
+         "platform reference point y, m, resolution 10 nm; raw -2147483648 = not_available"),
+        ("position_z", "72|32@1- (1e-08,0) [-21.47483647|21.47483647]", "m",
+         "platform reference point z, m, resolution 10 nm; raw -2147483648 = not_available"),
     ]
     for c, start in (("qx", 104), ("qy", 132), ("qz", 160), ("qw", 188)):
         pose.append((f"orientation_{c}", f"{start}|28@1- (1e-08,0) [-1.34217727|1.34217727]", "",
