@@ -33,7 +33,7 @@ import threading
 import time
 from typing import Any, Callable, Optional
 
-from cablesvc.bench.e2e import _percentiles, add_setup_options, run_three_processes, run_with_progress
+from cablesvc.bench.e2e import BENCH_DEADLINE_S, _percentiles, add_setup_options, run_three_processes, run_with_progress
 
 __all__ = ["add_parser", "cmd_soak", "read_rss_mb", "run_soak_bench"]
 
@@ -180,7 +180,7 @@ def run_soak_bench(rate: float = 1000.0, minutes: float = 30.0, *, robot: str = 
                 runs.append([q, 1])
     return {
         "minutes": float(minutes), "rate_hz": float(rate), "robot": robot, "transport": "can-fd" if fd else "can",
-        "encoding": encoding, "ticks": sent, "received": received, "missed": sent - received,
+        "encoding": encoding, "deadline_s": BENCH_DEADLINE_S, "ticks": sent, "received": received, "missed": sent - received,
         "controller_overruns": summary.get("overruns"),
         "p50_us": total["p50_us"], "p99_us": total["p99_us"], "p999_us": total["p999_us"], "max_us": total["max_us"],
         "rss_start_mb": None if rss_start is None else round(rss_start, 2),
