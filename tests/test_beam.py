@@ -194,6 +194,32 @@ def test_pso_objective_and_short_identification():
     assert np.asarray(res["correlation"]).shape == (5, 5)
 
 
+def test_dense_data_objective_reads_the_model_loop_at_every_sample():
+    """Data sampled k times per load step: the cubic resampling is exact for cubics and
+    returns the load-step values at every k-th sample; the model's loop read at the dense
+    samples matches the model run with that many load steps, and the objective
+    refuses a sample count that is not k * steps + 1."""
+    from cablesvc.beam.identify import LoopObjective, cubic_resampling, synthetic_test
+    idx, w = cubic_resampling(24, 10)
+    u = np.arange(241) / 10
+    p = lambda v: 0.3 * v ** 3 - 2 * v ** 2 + v - 5
+    assert np.allclose((p(np.arange(25.0))[idx] * w).sum(1), p(u), rtol=0, atol=1e-9)
+    g = np.random.default_rng(0).normal(size=25)
+    assert np.array_equal((g[idx] * w).sum(1)[::10].round(12), g.round(12))
+    opt = SolverOptions(n_elements=12, steps_per_cycle=120)
+    # the model's 120-step loop read at 1200 instants against the same model run with 1200
+    # load steps: 8e-5 of RMS(f) (linear interpolation: 5e-4, which biased psi by 0.4 %)
+    fine = SolverOptions(n_elements=12, steps_per_cycle=1200, cycles=2)
+    ref = synthetic_test(ROPE_7x19, 0.075, TABLE4, 0.01, noise=0.0, steps_per_cycle=1200, truth_options=fine)
+    assert ref.f.size == 1201
+    f_read = LoopObjective([ref], opt).loops(TABLE4.as_array()[None, :5])[0][0]
+    assert np.sqrt(np.mean((f_read - ref.f) ** 2)) < 2e-4 * np.sqrt(np.mean(ref.f ** 2))
+    te_bad = synthetic_test(ROPE_7x19, 0.075, TABLE4, 0.01, noise=0.01, seed=3, steps_per_cycle=200,
+                            truth_options=SolverOptions(n_elements=12, steps_per_cycle=200, cycles=2))
+    with pytest.raises(ValueError, match="k \\* steps_per_cycle"):
+        LoopObjective([te_bad], opt)
+
+
 def test_polish_reaches_truth_without_noise_and_beats_truth_with_noise():
     """Diagnosis of the psi/delta errors (docs/beam.md): without noise the least-squares
     polish from a start 6 % along the psi delta valley recovers psi and delta although the
