@@ -4,7 +4,7 @@ Key expressions, per robot (``keys(robot)``):
 
 =========================== ============================================================
 ``cablesvc/<robot>/forces``  one forces message per processed tick (put, express,
-                             drop under congestion: the newest value matters)
+                             block under congestion: a tick is never dropped)
 ``cablesvc/<robot>/alarms``  one message per alarm raise or clear (put, express,
                              block under congestion: an alarm is never dropped)
 ``cablesvc/<robot>/status``  queryable: a get returns the daemon's status as JSON
@@ -43,8 +43,9 @@ _UNSET: Any = object()
 _MODES = ("peer", "client", "router")
 
 
-#: how long a forces put waits for room in a full transmit queue before it is dropped [us]
-DROP_WAIT_US = 5000
+#: how long a link may stay blocked (transmit queue full under BLOCK congestion control)
+#: before Zenoh closes it [us]: the longest a stuck subscriber can hold up the daemon
+BLOCK_CLOSE_US = 1_000_000
 
 
 def make_config(config_file: str | None = None, *, mode: str = _UNSET, listen: Iterable[str] | str = _UNSET,
@@ -76,20 +77,18 @@ def make_config(config_file: str | None = None, *, mode: str = _UNSET, listen: I
     if multicast_scouting is not _UNSET:
         cfg.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
     if config_file is None:
-        # Forces go out at data-high priority, dropped under congestion. Zenoh's default
-        # transmit queue for that priority is 2 batches: a subscriber descheduled for a few
-        # milliseconds at 1 kHz overflows it. 16 (the maximum) rides out such stalls.
+        # Forces go out at data-high priority. Zenoh's default transmit queue for that
+        # priority is 2 batches: a subscriber descheduled for a few milliseconds at 1 kHz
+        # overflows it. 16 (the maximum) rides out short stalls without blocking.
         cfg.insert_json5("transport/link/tx/queue/size/data_high", "16")
-        # A forces put that finds that queue full waits this long for room before Zenoh drops
-        # it (default 1 ms). On a shared machine the whole VM stalls for tens of ms now and
-        # then; afterwards the daemon catches up with a burst faster than the link drains,
-        # and with 1 ms a 30-minute soak at 1 kHz lost 103 of 1.8 M messages (0 at the
-        # daemon's input). 5 ms rides out those bursts (a 1 kHz publisher against a
-        # subscriber stalling 80 ms every 2 s: 31 lost in 20 000 at 1 ms, 0 at 2 and 5 ms).
-        # The price: a subscriber that stops reading but keeps its session slows each put
-        # to 5 ms until Zenoh's lease (10 s) drops it.
-        cfg.insert_json5("transport/link/tx/queue/congestion_control/drop/wait_before_drop",
-                         str(DROP_WAIT_US))
+        # Forces are put with BLOCK congestion control: "every accepted tick is published
+        # once" has to hold at the subscriber too. Under DROP, Zenoh silently dropped what a
+        # full queue could not take: 30-minute soaks at 1 kHz lost 103, 51 and 97 of 1.8 M
+        # messages after VM stalls (drop waits 1-5 ms), with 0 lost at the daemon's input.
+        # The price: a subscriber that stops reading holds up the daemon's puts until Zenoh
+        # closes its link, after this long blocked (Zenoh's default: 5 s).
+        cfg.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close",
+                         str(BLOCK_CLOSE_US))
     return cfg
 
 
@@ -135,7 +134,7 @@ class Publisher:
     :mod:`cablesvc.service.fleet`): a shared session belongs to whoever opened it, and
     :meth:`close` then withdraws only this robot's declarations and leaves the session
     open. Either way it declares the forces publisher (express, data-high
-    priority, drop under congestion) and the alarms publisher (express, interactive-high
+    priority, block under congestion) and the alarms publisher (express, interactive-high
     priority, block under congestion), a queryable on the status key answering
     ``json(status())``, and a liveliness token on the alive key. ``encoding`` "json" or
     "compact" is the encoding of the forces messages (alarms and status are always JSON).
@@ -168,7 +167,7 @@ class Publisher:
         try:
             self._forces = self.session.declare_publisher(
                 k.forces, encoding=zenoh.Encoding(self._enc_str), express=True,
-                congestion_control=zenoh.CongestionControl.DROP, priority=zenoh.Priority.DATA_HIGH)
+                congestion_control=zenoh.CongestionControl.BLOCK, priority=zenoh.Priority.DATA_HIGH)
             self._alarms = self.session.declare_publisher(
                 k.alarms, encoding=zenoh.Encoding(JSON_ENCODING), express=True,
                 congestion_control=zenoh.CongestionControl.BLOCK, priority=zenoh.Priority.INTERACTIVE_HIGH)
