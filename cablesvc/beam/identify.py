@@ -211,8 +211,8 @@ class LoopObjective:
                 f = F[:, j, :]
                 ip = self._interp[i]
                 if ip is not None:
-                    idx, w = ip
-                    f = np.einsum("psj,sj->ps", f[:, idx], w)
+                    cols, w = ip
+                    f = np.einsum("psj,sj->ps", f[:, cols], w)
                 res[i] = f
         self.nsim += p * len(self.tests)
         self.seconds += time.perf_counter() - t0

@@ -46,7 +46,7 @@ PROTOCOL_MM = (0.005, 0.010, 0.015, 0.020)        # m: the paper's amplitudes 5,
 DEFAULT_COORDS = "valley"
 #: force samples per loop in the synthetic data: a load cell read at 240 Hz over the
 #: paper's 10 s cycle (0.1 Hz); the model runs 240 load steps per cycle and is read at the
-#: samples by linear interpolation in time
+#: samples by cubic interpolation in time (beam.identify.cubic_resampling)
 SAMPLES_PER_CYCLE = 2400
 NAMES = ("psi", "delta", "gamma", "beta", "n")
 

@@ -192,8 +192,9 @@ def run_soak_bench(rate: float = 1000.0, minutes: float = 30.0, *, robot: str = 
         "per_minute": per_minute,
         "missing_seq_runs": runs,
         "daemon_input": status.get("input"), "daemon_latency_us": status.get("latency_us"),
-        # the daemon's side: puts made (Zenoh does not count what it drops under congestion),
-        # ticks not put because no subscriber matched at that moment, puts that raised
+        # the daemon's side: puts made (forces block under congestion, so a put is lost only
+        # if Zenoh closes a link blocked for 1 s), ticks not put because no subscriber
+        # matched at that moment, puts that raised
         "daemon_published": status.get("published"), "daemon_skipped": status.get("skipped_no_subscriber"),
         "daemon_publish_errors": status.get("publish_errors"),
         "shutdown_s": round(shutdown_s, 3),

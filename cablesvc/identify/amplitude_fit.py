@@ -113,7 +113,8 @@ def reversal_points(x: np.ndarray, eps: float) -> np.ndarray:
     """Indices of the turning points of ``x`` (N,): a running extreme is confirmed as a
     reversal once x has moved back from it by more than ``eps`` [m] (hysteresis against
     noise and quantisation). On a flat top the last sample of the flat is the reversal,
-    as in the kernel (whose direction flips at the first sample moving the other way)."""
+    as in the kernel (:func:`cablesvc.models.reversal.track_reversals`, with its
+    ``reversal_deadband`` in place of ``eps``)."""
     x = np.asarray(x, dtype=float)
     out: list[int] = []
     direction = 0

@@ -177,9 +177,8 @@ class AmplitudeDependent(CableModel):
         dx, nd, e, r = self._dx, self._nd, self._e, self._r
         mem, new = state.memory, self._new
         A, T = mem[1], mem[2]
-        t_prev = float(state.clock[0])
-        state.clock[0] = t_prev + dt
-        t_now = t_prev + dt
+        t_now = float(state.clock[0]) + dt
+        state.clock[0] = t_now
         sub(x, state.x_prev, dx)
         s_dir, ext = state.direction, mem[4]
         track_reversals(x, s_dir, ext, self.params["reversal_deadband"], e, self._rev)
