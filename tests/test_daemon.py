@@ -315,3 +315,22 @@ def test_subscriber_restart_while_the_daemon_runs(tmp_path: Path):
     assert min(m["seq"] for m in second) > max(m["seq"] for m in first)
     offline = offline_forces(rec)
     assert assert_matches_offline(first + second, offline) == 80
+
+
+def test_pipeline_baseline_passes_every_tick_through_with_the_daemons_message_shape():
+    """``bench e2e``'s pipeline baseline: controller process -> pass-through daemon (CAN
+    source, no kernel) -> Zenoh -> this process. Every tick sent arrives once, stamped by
+    the source before it was received here, in a message that follows the forces schema."""
+    from cablesvc.bench.e2e import run_three_processes
+    from cablesvc.service.messages import FORCES_SCHEMA, check_schema
+
+    got: list[tuple[dict, int]] = []
+    run = run_three_processes(200.0, 2.0, lambda payload, ns: got.append((payload, ns)), passthrough=True)
+    sent = int(run["summary"]["ticks_sent"])
+    seqs = [p["seq"] for p, _ in got]
+    assert sent >= 300
+    assert len(seqs) == len(set(seqs)) == sent
+    assert all(ns > p["stamp_ns"] for p, ns in got)
+    assert check_schema(got[-1][0], FORCES_SCHEMA) == []
+    assert run["status"]["input"]["accepted"] == sent
+    assert run["status"]["published"] == sent

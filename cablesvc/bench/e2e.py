@@ -11,9 +11,19 @@
 Latency = arrival at the subscriber minus the input stamp (``stamp_ns`` in the message:
 ``time.monotonic_ns()`` in the daemon when the tick's last frame had been received and
 the tick was complete; CLOCK_MONOTONIC is one clock for all processes of a host).
-Missed ticks = ticks the controller sent minus distinct ticks received. The baseline,
-measured in the same run, is Zenoh alone: a publisher process sends messages of the same
-size at the same rate, stamped just before ``put``, to the same subscriber.
+Missed ticks = ticks the controller sent minus distinct ticks received.
+
+Two baselines, measured in the same run, say how much of that latency is this machine's
+and not the daemon's:
+
+* ``baseline``: Zenoh alone. A publisher process sends messages of the same size at the
+  same rate, stamped just before ``put``, to the same subscriber; no bus, no controller.
+* ``pipeline_baseline``: the same three processes, with the daemon replaced by a
+  pass-through (:func:`_passthrough_daemon`): the same CAN source (frames assembled,
+  decoded and validated, stamped the same way) and the same publisher, but instead of
+  the kernel, the alarms and the payload, one fixed message of the daemon's size per
+  tick. What it measures is the floor of this set-up on this machine: a daemon with a
+  kernel that took no time at all would see this latency.
 """
 
 from __future__ import annotations
@@ -165,8 +175,61 @@ def _baseline_publisher(port: int, rate: float, seconds: float, n_cables: int) -
     print(json.dumps({"sent": n}), flush=True)
 
 
+def _passthrough_daemon(config_path: str) -> None:
+    """The ``pipeline_baseline`` daemon (see the module docstring): the source and the
+    publisher of ``cablesvc run --config config_path``, nothing in between. Stops on SIGTERM."""
+    import tomllib
+
+    from cablesvc.config import load_robot
+    from cablesvc.service.zenoh_io import Publisher, make_config
+    from cablesvc.sources import open_source
+
+    with open(config_path, "rb") as f:
+        cfg = tomllib.load(f)
+    robot = load_robot(cfg["robot"])
+    m = robot.geometry().n_cables
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    source = open_source(robot, cfg["source"])
+    published = [0]
+
+    def status() -> dict[str, Any]:
+        return {"robot": robot.name, "published": published[0],
+                "input": {"source": cfg["source"]["kind"], **source.counters.as_dict()}}
+
+    pub = Publisher(robot.name, make_config(listen=cfg["listen"]), encoding=cfg.get("encoding", "json"),
+                    status=status)
+    # a forces message (forces_payload) with fixed numbers of full precision (17 digits, as
+    # the daemon's are), so that it encodes to the daemon's size
+    third = [(k + 1) / 3.0 for k in range(m)]
+    msg = {"robot": robot.name, "seq": 0, "t": 0.0, "stamp_ns": 0, "cables": list(robot.geometry().cable_names),
+           "force": [60.0 + v for v in third], "elongation": [v * 1e-4 for v in third], "wrap_angle": third,
+           "slack": [False] * m, "measured": [60.0 + v / 7 for v in third], "residual": [v / 7 for v in third],
+           "wrench_residual": third[:6], "position": [0.0, 0.0, 0.0], "orientation": [0.0, 0.0, 0.0, 1.0],
+           "amplitude": [v * 1e-3 for v in third], "temperature": None, "pose_from_fk": False, "fk_residual": 0.0}
+
+    def sink(tick) -> None:
+        msg["seq"] = tick.seq
+        msg["t"] = tick.t
+        msg["stamp_ns"] = tick.stamp_ns
+        pub.publish_forces(msg)
+        published[0] += 1
+
+    try:
+        source.open()
+        source.set_sink(sink)
+        while not stop.wait(0.05):
+            source.problems()
+    finally:
+        source.set_sink(None)
+        source.close()
+        pub.close()
+
+
 def run_three_processes(rate: float, seconds: float, collector: Callable[[dict, int], None], *,
                         robot: str = "ipanema3", fd: bool = True, encoding: str = "json",
+                        passthrough: bool = False,
                         say: Callable[[str, float], None] | None = None,
                         on_subscribed: Callable[[int], None] | None = None,
                         on_ready: Callable[[], None] | None = None,
@@ -177,8 +240,10 @@ def run_three_processes(rate: float, seconds: float, collector: Callable[[dict, 
     receive_ns)`` to its forces, runs the controller process for ``seconds`` at ``rate`` Hz,
     and stops everything. Hooks: ``on_subscribed(daemon_pid)`` once the subscription is in
     place, ``on_ready()`` when the controller starts ticking, ``on_finished()`` after the
-    last messages arrived. Returns ``fd`` (False when the bus has no CAN FD), the
-    controller's ``summary``, the daemon's ``status`` and ``shutdown_s`` (SIGTERM to exit).
+    last messages arrived. ``passthrough``: run :func:`_passthrough_daemon` instead of
+    ``cablesvc run`` (the pipeline baseline). Returns ``fd`` (False when the bus has no CAN
+    FD), the controller's ``summary``, the daemon's ``status`` and ``shutdown_s`` (SIGTERM
+    to exit).
     """
     from cablesvc.service.zenoh_io import Listener, make_config
     from cablesvc.sources.can_source import free_udp_port, loopback_bus_config
@@ -204,8 +269,12 @@ def run_three_processes(rate: float, seconds: float, collector: Callable[[dict, 
         write_daemon_config(cfg, robot, f"tcp/127.0.0.1:{zport}", source, encoding)
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         say("starting the daemon", 0.0)
-        daemon = subprocess.Popen([sys.executable, "-m", "cablesvc", "run", "--config", str(cfg), "--no-view",
-                                   "--no-snapshot", "--log-level", "WARNING"],
+        if passthrough:
+            argv = [sys.executable, "-m", "cablesvc.bench.e2e", "--passthrough-daemon", str(cfg)]
+        else:
+            argv = [sys.executable, "-m", "cablesvc", "run", "--config", str(cfg), "--no-view",
+                    "--no-snapshot", "--log-level", "WARNING"]
+        daemon = subprocess.Popen(argv,
                                   stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
         lst = None
         ctl = None
@@ -256,15 +325,31 @@ def run_three_processes(rate: float, seconds: float, collector: Callable[[dict, 
     return {"fd": fd, "summary": summary, "status": status, "shutdown_s": shutdown_s}
 
 
+def run_pipeline_baseline(rate: float, seconds: float, *, robot: str = "ipanema3", fd: bool = True,
+                          encoding: str = "json", say: Callable[[str, float], None] | None = None) -> dict[str, Any]:
+    """The three processes with the pass-through daemon (see the module docstring)."""
+    col = _Collector()
+    run = run_three_processes(rate, seconds, col, robot=robot, fd=fd, encoding=encoding, say=say, passthrough=True)
+    sent = int(run["summary"]["ticks_sent"])
+    return {"ticks": sent, "received": len(col.seqs), "missed": sent - len(col.seqs), **_percentiles(col.lat),
+            "daemon_input": run["status"].get("input")}
+
+
 def run_e2e_bench(rate: float = 1000.0, seconds: float = 60.0, *, robot: str = "ipanema3", fd: bool = True,
                   encoding: str = "json", baseline_seconds: float | None = 10.0,
+                  pipeline_seconds: float | None = 20.0,
                   progress: Callable[[str, float], None] | None = None) -> dict[str, Any]:
-    """Run the three-process benchmark; returns the JSON keys of ``cablesvc bench e2e``."""
+    """Run the three-process benchmark; returns the JSON keys of ``cablesvc bench e2e``.
+    ``baseline_seconds`` / ``pipeline_seconds``: length of the two baselines (0 or None:
+    skip)."""
     say = progress or (lambda what, frac: None)
-    baseline = None
+    baseline = pipeline = None
     if baseline_seconds:
         say("baseline: Zenoh alone", 0.0)
         baseline = run_baseline(rate, baseline_seconds)
+    if pipeline_seconds:
+        pipeline = run_pipeline_baseline(rate, pipeline_seconds, robot=robot, fd=fd, encoding=encoding,
+                                         say=lambda what, frac: say(f"pipeline baseline: {what}", frac))
     col = _Collector()
     run = run_three_processes(rate, seconds, col, robot=robot, fd=fd, encoding=encoding, say=say)
     status = run["status"]
@@ -273,6 +358,8 @@ def run_e2e_bench(rate: float = 1000.0, seconds: float = 60.0, *, robot: str = "
                               "deadline_s": BENCH_DEADLINE_S}
     if baseline is not None:
         result["baseline"] = baseline
+    if pipeline is not None:
+        result["pipeline_baseline"] = pipeline
     sent = int(run["summary"]["ticks_sent"])
     result.update(ticks=sent, received=len(col.seqs), missed=sent - len(col.seqs),
                   controller_overruns=run["summary"].get("overruns"), **_percentiles(col.lat),
@@ -306,13 +393,16 @@ def add_parser(sub) -> argparse.ArgumentParser:
     add_setup_options(p)
     p.add_argument("--seconds", type=float, default=60.0, help="length of the measured run (default 60)")
     p.add_argument("--baseline-seconds", type=float, default=10.0, help="Zenoh-only baseline length (0: skip)")
+    p.add_argument("--pipeline-seconds", type=float, default=20.0,
+                   help="pipeline baseline length: the same processes with a pass-through daemon (0: skip)")
     p.add_argument("--json", action="store_true", help="one JSON object")
     p.set_defaults(func=cmd_e2e)
     return p
 
 
 def cmd_e2e(args) -> int:
-    kw = dict(robot=args.robot, fd=not args.classic, encoding=args.encoding, baseline_seconds=args.baseline_seconds)
+    kw = dict(robot=args.robot, fd=not args.classic, encoding=args.encoding, baseline_seconds=args.baseline_seconds,
+              pipeline_seconds=args.pipeline_seconds)
     if args.json:
         print(json.dumps(run_e2e_bench(args.rate, args.seconds, **kw)))
         return 0
@@ -324,7 +414,11 @@ def cmd_e2e(args) -> int:
                      f"{res['rate_hz']:g} Hz for {res['seconds']:g} s (input stamp -> subscriber)")
     for c in ("run", "ticks", "missed", "p50 us", "p99 us", "p99.9 us", "max us"):
         tb.add_column(c, justify="right")
-    rows = [("daemon", res)] + ([("baseline: Zenoh only", res["baseline"])] if "baseline" in res else [])
+    rows = [("daemon", res)]
+    if "pipeline_baseline" in res:
+        rows.append(("baseline: bus + Zenoh, pass-through daemon", res["pipeline_baseline"]))
+    if "baseline" in res:
+        rows.append(("baseline: Zenoh only", res["baseline"]))
     for name, r in rows:
         tb.add_row(name, str(r["ticks"]), str(r["missed"]), f"{r['p50_us']:.0f}", f"{r['p99_us']:.0f}",
                    f"{r['p999_us']:.0f}", f"{r['max_us']:.0f}")
@@ -337,3 +431,5 @@ def cmd_e2e(args) -> int:
 if __name__ == "__main__":
     if len(sys.argv) == 6 and sys.argv[1] == "--baseline-publisher":
         _baseline_publisher(int(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4]), int(sys.argv[5]))
+    elif len(sys.argv) == 3 and sys.argv[1] == "--passthrough-daemon":
+        _passthrough_daemon(sys.argv[2])
