@@ -14,8 +14,9 @@ from cablesvc.bench.cable_experiment import effective_values, experiment_truth, 
 from cablesvc.cli.identify_cmd import build_parser, run_identify
 from cablesvc.config import load_robot
 from cablesvc.config.params import load_params
-from cablesvc.identify.amplitude_fit import (damping_regressor, level_trace, reversal_points, segment_levels,
-                                             simulate_amplitude)
+from cablesvc.identify.amplitude_fit import (damping_regressor, level_trace, reversal_amplitude, reversal_points,
+                                             segment_levels, simulate_amplitude)
+from cablesvc.models import AmplitudeDependent
 from cablesvc.identify.cable import IdentifyError, cable_data, identify_cable
 from cablesvc.recording import write_recording
 from cablesvc.simulate import TruthConfig, simulate_recording
@@ -44,6 +45,46 @@ def test_segment_levels_finds_the_amplitude_levels(hold_rec):
     # a reversal is the sample where the motion turns
     x = np.array([0, 1, 2, 3, 2, 1, 0, 1, 2, 2, 2, 1], float)
     assert reversal_points(x, 0.5).tolist() == [3, 6, 10]
+
+
+def test_reversal_amplitude_is_known_from_the_sample_that_confirms_the_turn():
+    x = np.array([0, 1, 2, 3, 2, 1, 0, 1, 2, 2, 2, 1], float)
+    ext, seen = reversal_points(x, 0.5, confirmed=True)
+    assert ext.tolist() == [3, 6, 10] and seen.tolist() == [4, 7, 11]
+    # |0 - 3| / 2 from sample 7 on, |2 - 0| / 2 from sample 11; nothing before two turns
+    expect = [0.0] * 7 + [1.5] * 4 + [1.0]
+    assert reversal_amplitude(x, 0.5).tolist() == expect
+    # columns are cables; a mirrored cable has the same amplitude
+    np.testing.assert_array_equal(reversal_amplitude(np.c_[x, -x], 0.5), np.c_[expect, expect])
+
+
+@pytest.mark.parametrize("quantum", [1e-8, 1e-7])
+def test_offline_reversal_amplitude_equals_the_live_models_estimate(quantum):
+    """Discovery's amplitude signal and the amplitude model's online A follow one rule:
+    on a noisy, bus-quantised sine whose amplitude steps, they agree sample for sample once
+    the live estimator is past its start (it assumes rising motion and an initial A)."""
+    rng = np.random.default_rng(7)
+    dt = 1e-3
+    t = np.arange(12_000) * dt
+    amp = np.where(t < 6.0, 4e-4, 1.1e-3)
+    x = 2e-3 - amp * np.cos(2 * np.pi * 0.5 * t) + rng.normal(0, 5e-8, t.size)
+    x = np.round(x / quantum) * quantum
+    deadband = 1e-6
+    model = AmplitudeDependent((1, 1), amplitudes=[1e-4, 2e-3], K0=60.0, K1=2e5, reversal_deadband=deadband)
+    state = model.create_state(x[:1].reshape(1, 1))
+    live = np.empty(t.size)
+    live[0] = state.memory[1, 0, 0]
+    for k in range(1, t.size):
+        model.step(state, x[k].reshape(1, 1), dt)
+        live[k] = state.memory[1, 0, 0]
+    offline = reversal_amplitude(x, deadband)
+    _, seen = reversal_points(x, deadband, confirmed=True)
+    assert seen.size == 11                                  # 2 turns a cycle (6 cycles), no noise turns
+    after = seen[2]
+    np.testing.assert_allclose(live[after:], offline[after:], rtol=1e-12, atol=0)
+    # and both are the true amplitudes, within the noise on the extremes
+    assert offline[seen[4]] == pytest.approx(4e-4, rel=1e-3)
+    assert offline[-1] == pytest.approx(1.1e-3, rel=1e-3)
 
 
 def test_identify_linear_from_short_recording():

@@ -24,11 +24,13 @@ Units: SI throughout (m, s, N, K, rad).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Any, Callable, Optional
+from dataclasses import dataclass
+from typing import Any, Optional
 
 import numba
 import numpy as np
+
+from cablesvc.identify.amplitude_fit import reversal_amplitude
 
 __all__ = [
     "LIBRARY", "Signals", "Term", "Design", "register", "library", "PulleyFriction", "Creep",
@@ -152,51 +154,6 @@ def _design(cols: list[np.ndarray], names, units, lower=None, upper=None, fixed=
 def smooth_sign(v: np.ndarray, v_s: float) -> np.ndarray:
     """tanh(v / v_s): the sign of v, smoothed over the speed ``v_s`` [m/s]."""
     return np.tanh(v / v_s)
-
-
-def reversal_amplitude(x: np.ndarray, tol: float = 2e-6) -> np.ndarray:
-    """Elongation amplitude A [m] per tick from the reversal points of x (N, m): half the
-    distance between the last two reversals (002 Sec 3: the amplitude the model's tables
-    are indexed by), held between reversals; ``tol`` [m] ignores reversals smaller than
-    that (sensor-level wiggles)."""
-    N, m = x.shape
-    out = np.zeros((N, m))
-    for c in range(m):
-        out[:, c] = _rev_amp(np.ascontiguousarray(x[:, c]), tol)
-    return out
-
-
-@numba.njit(cache=True)
-def _rev_amp(x, tol):
-    N = x.shape[0]
-    out = np.zeros(N)
-    last_rev = x[0]
-    ext = x[0]
-    direction = 0
-    amp = 0.0
-    for k in range(N):
-        xk = x[k]
-        if direction >= 0:
-            if xk >= ext:
-                ext = xk
-                if direction == 0 and xk - last_rev > tol:
-                    direction = 1
-            elif ext - xk > tol:
-                if direction == 1:
-                    amp = 0.5 * abs(ext - last_rev)
-                last_rev = ext
-                ext = xk
-                direction = -1
-        if direction < 0:
-            if xk <= ext:
-                ext = xk
-            elif xk - ext > tol:
-                amp = 0.5 * abs(ext - last_rev)
-                last_rev = ext
-                ext = xk
-                direction = 1
-        out[k] = amp
-    return out
 
 
 @numba.njit(cache=True)
