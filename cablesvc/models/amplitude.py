@@ -151,14 +151,12 @@ class AmplitudeDependent(CableModel):
             e(), e(), e(), e(), e(), e(), e(), e())
         self._rev = np.empty(sh, dtype=bool)
         self._newext = np.empty(sh, dtype=bool)
-        self._rev6 = np.empty((6,) + sh, dtype=bool)
-        self._rep6 = np.repeat(np.arange(LC, dtype=np.intp)[None, :], 6, axis=0)
         self._idx = np.empty(sh, dtype=np.intp)
         self._vals = np.empty((ncol, LC))
         self._new = np.empty((6,) + sh)
         self._cols = [self._vals[j].reshape(sh) for j in range(ncol)]
         # flat views made once (a reshape per step would allocate a view object)
-        self._rev_flat, self._rev6_flat, self._idx_flat = self._rev.reshape(-1), self._rev6.reshape(6, -1), self._idx.reshape(-1)
+        self._idx_flat = self._idx.reshape(-1)
 
     def create_state(self, x0=0.0) -> AmplitudeState:
         x0a = self._x0(x0)
@@ -189,7 +187,8 @@ class AmplitudeDependent(CableModel):
         # at a reversal the extremum is the turning point: A <- |extremum - last reversal
         # point| / 2, half period <- t_extremum - t_rev, last reversal point <- extremum,
         # t_rev <- t_extremum, and the new half-cycle's extremum starts at (x, t_now); all
-        # six rows as one masked copy
+        # six rows as one masked copy (the mask broadcasts over the rows: same dtype, no
+        # iterator buffer, nothing allocated)
         sub(ext, mem[0], e)
         np.absolute(e, new[1])
         mul(new[1], 0.5, new[1])
@@ -197,8 +196,7 @@ class AmplitudeDependent(CableModel):
         sub(mem[5], mem[3], new[2])
         np.copyto(new[3], mem[5])
         np.copyto(new[4], x)
-        np.take(self._rev_flat, self._rep6, out=self._rev6_flat, mode="clip")
-        np.copyto(mem, new, where=self._rev6)
+        np.copyto(mem, new, where=self._rev)
         np.negative(s_dir, nd)
         np.copyto(s_dir, nd, where=self._rev)
         # A not below the table's smallest amplitude
