@@ -119,23 +119,56 @@ def test_snapshot_restore_continues_exactly(ipanema):
         assert np.array_equal(fa, fb)
 
 
-def test_tick_allocates_nothing_over_10000_ticks(ipanema):
+@pytest.mark.parametrize("with_pose", [True, False], ids=["pose", "no-pose-fk"])
+def test_tick_allocates_nothing_over_10000_ticks(ipanema, with_pose):
+    """Both paths, the measured pose and the elasto-static FK from motor lengths alone,
+    keep no memory and make only small transient Python objects (no arrays) per tick."""
     g, L = ipanema
     pred = Predictor(g, default_params(g.ea, L, "amplitude"))
     t, ml, _ = sine_lengths(L, g.ea / L, 10_300)
     meas = np.full(g.n_cables, 60.0)
-    pos = np.zeros(3)
+    pos, quat = (np.zeros(3), Q0) if with_pose else (None, None)
     tracemalloc.start()
     for k in range(300):
-        pred.tick(t[k], ml[k], pos, Q0, meas, 21.0)
+        pred.tick(t[k], ml[k], pos, quat, meas, 21.0)
     base, _ = tracemalloc.get_traced_memory()
     tracemalloc.reset_peak()
     for k in range(300, 10_300):
-        pred.tick(t[k], ml[k], pos, Q0, meas, 21.0)
+        pred.tick(t[k], ml[k], pos, quat, meas, 21.0)
     cur, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
+    assert pred.out.pose_from_fk is not with_pose
     assert cur - base < 512, f"memory grew by {cur - base} B over 10 000 ticks"
     assert peak - base < 4096, f"a tick allocated temporaries: peak {peak - base} B above baseline"
+
+
+@pytest.mark.parametrize("robot", ["planar4", "cogiro"])
+def test_fk_tracks_the_equilibrium_pose_of_moving_motor_lengths(robot):
+    """Motor lengths made from a moving platform at equilibrium (linear cables): the FK,
+    warm-started tick after tick, finds that pose and the pose path's forces. Planar
+    robots solve the three planar wrench rows only, and keep z and the tilt at zero."""
+    g = load_robot(robot).geometry()
+    params = default_params(g.ea, inverse_kinematics(g, np.zeros((1, 3)), Q0[None]).length[0], "linear")
+    ref = Predictor(g, params, fk_iterations=8)
+    fk = Predictor(g, params)
+    # equilibrium poses along a path: the reference FK from cold at each, many iterations
+    for k in range(60):
+        t = k * 1e-3
+        L0 = inverse_kinematics(g, np.zeros((1, 3)), Q0[None]).length[0]
+        ml = L0 - 60.0 / (g.ea / L0) + 2e-3 * np.sin(2 * np.pi * 5.0 * t + np.arange(g.n_cables))
+        ref.reset()
+        o_ref = ref.tick(t, ml)
+        assert o_ref.fk_residual < 1e-6
+        o = fk.tick(t, ml)
+        assert o.pose_from_fk
+        assert o.fk_residual < 1e-3
+        assert np.allclose(o.position, o_ref.position, atol=1e-7)
+        assert np.allclose(o.orientation, o_ref.orientation, atol=1e-7)
+        assert np.isclose(np.linalg.norm(o.orientation), 1.0, atol=1e-12)
+        if g.planar:
+            assert o.position[2] == 0.0 and o.orientation[0] == 0.0 and o.orientation[1] == 0.0
+        forces = Predictor(g, params).tick(t, ml, o.position.copy(), o.orientation.copy()).force
+        assert np.allclose(o.force, forces, rtol=1e-12, atol=1e-9)
 
 
 def test_params_file_round_trip_and_errors(tmp_path, ipanema):
@@ -163,7 +196,7 @@ def test_bench_kernel_cli_json():
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     rows = [json.loads(line) for line in out.stdout.splitlines()]
-    assert [r["input"] for r in rows] == ["normal", "reversal", "slack", "large", "machine"]
+    assert [r["input"] for r in rows] == ["normal", "reversal", "slack", "large", "no_pose", "machine"]
     machine = rows.pop()
     # the same-run machine baseline: a fixed numpy workload sized to the kernel's median
     assert machine["model"] == "none" and machine["calls"] > 10 and machine["scheduling"] == "default"
@@ -174,3 +207,4 @@ def test_bench_kernel_cli_json():
                           "alloc_bytes_per_tick"}
         assert r["robot"] == "ipanema3" and r["model"] == "amplitude" and r["ticks"] == 2000
         assert 0 < r["p50_us"] <= r["p99_us"] <= r["p999_us"] <= r["max_us"]
+        assert r["alloc_bytes_per_tick"] < 0.1          # nothing kept per tick, with or without a pose

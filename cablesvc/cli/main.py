@@ -183,12 +183,14 @@ def build_parser() -> argparse.ArgumentParser:
     bsub = b.add_subparsers(dest="bench", metavar="BENCH")
     bk = bsub.add_parser("kernel", help="per-tick latency of the fixed-time kernel",
                          description="100 000 ticks with gc frozen; p50/p99/p99.9/max per tick for normal and "
-                                     "adversarial input (reversal every tick, slack, very large amplitudes).")
+                                     "adversarial input (reversal every tick, slack, very large amplitudes), "
+                                     "and for the normal input without a pose (no_pose: the elasto-static "
+                                     "forward kinematics runs every tick).")
     bk.add_argument("--robot", default="ipanema3")
     bk.add_argument("--model", default="amplitude", help="model with nominal parameters (amplitude, linear)")
     bk.add_argument("--params", help="parameter file instead of nominal parameters")
     bk.add_argument("--ticks", type=int, default=100_000)
-    bk.add_argument("--input", action="append", choices=["normal", "reversal", "slack", "large"],
+    bk.add_argument("--input", action="append", choices=["normal", "reversal", "slack", "large", "no_pose"],
                     help="only these inputs (repeatable; default all)")
     bk.add_argument("--json", action="store_true", help="one JSON object per run")
     bk.add_argument("--no-baseline", action="store_true",

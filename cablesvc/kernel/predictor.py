@@ -16,14 +16,19 @@ forward kinematics: a fixed number of damped Gauss-Newton (Levenberg-Marquardt) 
 on the platform equilibrium A^T f + w = 0 with linear cable forces f = EA/l0 * x,
 warm-started from the last pose (first tick: the geometric FK of
 :class:`cablesvc.kinematics.ForwardKinematics` on the motor lengths). The step is
-dp = (A^T K A + lambda I)^-1 (A^T f + w) with K = diag(EA/l0), since moving the platform
-by dp changes the lengths by -A dp. Hysteresis shifts the forces by a few newtons, which
+dp = (A^T K A + lambda diag(A^T K A))^-1 (A^T f + w) with K = diag(EA/l0), since moving
+the platform by dp changes the lengths by -A dp; the rotation part of dp is a rotation
+vector applied in the world frame. Hysteresis shifts the forces by a few newtons, which
 moves the equilibrium pose by a second-order amount; the residual |A^T f + w| after the
-last step is reported.
+last step is reported. This path too is fixed time and allocation-free after the first
+tick: the same numpy calls on preallocated buffers every step (the r x r solve, r = 6 or
+3 for planar robots, is numpy's LAPACK gufunc with an output argument), and the pose
+update in Python floats, as :class:`~cablesvc.kinematics.InverseKinematics` loads poses.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,8 +37,13 @@ from cablesvc.config.params import ModelParams
 from cablesvc.config.robot import RobotGeometry
 from cablesvc.kinematics import ForwardKinematics, InverseKinematics
 from cablesvc.kinematics.ik import PLANAR_WRENCH_ROWS
-from cablesvc.kinematics.rotation import quat_multiply, rotvec_to_quat
 from cablesvc.models import AmplitudeDependent, CableModel
+
+try:   # the gufunc behind np.linalg.solve, which takes an output array (np.linalg.solve does not)
+    from numpy.linalg._umath_linalg import solve1 as _solve_into
+except ImportError:  # pragma: no cover - a numpy without it: same numbers, one small allocation
+    def _solve_into(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+        np.copyto(out, np.linalg.solve(a, b))
 
 
 @dataclass
@@ -96,6 +106,22 @@ class Predictor:
         self._w0 = self.ik.wrench[0]
         self._wrap0 = self.ik.state.wrap_angle[0]
         self._amp_src = None
+        # elasto-static FK buffers (r = number of wrench rows solved for)
+        r = self._rows.size
+        self._fk_k = np.empty(m)                 # EA / l0 [N/m]
+        self._fk_x = np.empty(m)
+        self._fk_f = np.empty(m)
+        self._fk_g6 = np.empty(6)
+        self._fk_g = np.empty(r)
+        self._fk_ATr = np.empty((r, m))
+        self._fk_ATrT = self._fk_ATr.T
+        self._fk_ATk = np.empty((r, m))
+        self._fk_K = np.empty((r, r))
+        self._fk_Kdiag = self._fk_K.reshape(-1)[:: r + 1]
+        self._fk_dp = np.empty(r)
+        self._fk_dp6 = np.zeros(6)
+        self._fk_scatter = np.eye(6)[:, self._rows]   # (6, r): dp_r -> dp
+        self._len0 = self.ik.state.length[0]
         # one output object, updated in place every tick
         self.out = TickOutput(
             t=0.0, force=self._f, elongation=self._x0, wrap_angle=self._wrap0, slack=self._slack,
@@ -147,12 +173,13 @@ class Predictor:
         np.copyto(self._ml0, motor_length)
         from_fk = position is None or orientation is None
         if from_fk:
-            fk_res = self._elastostatic_fk()
+            fk_res = self._elastostatic_fk()         # ends with the IK at the pose it found
+            ik = self.ik.state
         else:
             np.copyto(self._pos0, position)
             np.copyto(self._quat0, orientation)
             fk_res = 0.0
-        ik = self.ik(self._pos, self._quat)
+            ik = self.ik(self._pos, self._quat)
         x = self._x
         np.subtract(ik.length, ml, x)
         if self.state is None:
@@ -183,30 +210,67 @@ class Predictor:
         return out
 
     def _elastostatic_fk(self) -> float:
-        """Pose from motor lengths: fixed-count damped Gauss-Newton on A^T f + w = 0."""
-        ml = self._ml
+        """Pose from motor lengths: fixed-count damped Gauss-Newton on A^T f + w = 0 (see
+        the module docstring). Leaves the IK evaluated at the pose found; returns
+        |A^T f + w| there [N] (over the solved rows). Raises FloatingPointError if the
+        pose is no longer finite (the next tick then starts again from the geometric FK)."""
+        ml0 = self._ml0
         if not self._have_pose:
-            res = self.fk_geometric.solve(ml, self._pos, self._quat)
+            res = self.fk_geometric.solve(self._ml, self._pos, self._quat)
             self._pos[...] = res.position
             self._quat[...] = res.orientation
             self._have_pose = True
-        rows = self._rows
-        k = self._ea / ml[0]
-        for _ in range(self.fk_iterations):
-            ik = self.ik(self._pos, self._quat)
-            x = ik.length[0] - ml[0]
-            f = k * x
-            AT = self.ik.structure_matrix()[0]
-            g = (AT @ f + self.ik.platform_wrench()[0])[rows]
-            ATr = AT[rows]
-            K = (ATr * k) @ ATr.T
-            K[np.diag_indices_from(K)] *= 1.0 + self.fk_damping
-            dp_r = np.linalg.solve(K, g)
-            dp = np.zeros(6)
-            dp[rows] = dp_r
-            self._pos[0] += dp[:3]
-            self._quat[0] = quat_multiply(rotvec_to_quat(dp[3:]), self._quat[0])
-        ik = self.ik(self._pos, self._quat)
-        f = k * (ik.length[0] - ml[0])
-        g = (self.ik.structure_matrix()[0] @ f + self.ik.platform_wrench()[0])[rows]
-        return float(np.linalg.norm(g))
+        ik, rows = self.ik, self._rows
+        k, x, f, g6, g = self._fk_k, self._fk_x, self._fk_f, self._fk_g6, self._fk_g
+        ATr, ATrT, ATk, K, Kdiag = self._fk_ATr, self._fk_ATrT, self._fk_ATk, self._fk_K, self._fk_Kdiag
+        dp, dp6, scatter = self._fk_dp, self._fk_dp6, self._fk_scatter
+        AT, w, length = self._AT0, self._w0, self._len0
+        pos0, quat0 = self._pos0, self._quat0
+        np.divide(self._ea, ml0, out=k)
+        damp = 1.0 + self.fk_damping
+        for _ in range(self.fk_iterations):          # a fixed count, not a data-dependent loop
+            ik(self._pos, self._quat)
+            np.subtract(length, ml0, x)
+            np.multiply(k, x, f)
+            ik.structure_matrix()
+            np.matmul(AT, f, out=g6)
+            np.add(g6, w, g6)
+            g6.take(rows, None, g)
+            AT.take(rows, 0, ATr)
+            np.multiply(ATr, k, out=ATk)
+            np.matmul(ATk, ATrT, out=K)               # A^T K A over the solved rows
+            np.multiply(Kdiag, damp, out=Kdiag)
+            _solve_into(K, g, out=dp)
+            np.matmul(scatter, dp, out=dp6)
+            # r <- r + dp[:3]; q <- q(dp[3:]) q, the rotation vector dp[3:] in the world frame
+            dx, dy, dz, wx, wy, wz = dp6.tolist()
+            (px, py, pz), = self._pos.tolist()
+            (qx, qy, qz, qw), = self._quat.tolist()
+            h = 0.5 * math.sqrt(wx * wx + wy * wy + wz * wz) + 1e-300   # half angle; > 0
+            sc = math.sin(h) / (2.0 * h)                                # sin(theta/2) / theta
+            ax, ay, az, aw = wx * sc, wy * sc, wz * sc, math.cos(h)
+            nx = aw * qx + ax * qw + ay * qz - az * qy
+            ny = aw * qy - ax * qz + ay * qw + az * qx
+            nz = aw * qz + ax * qy - ay * qx + az * qw
+            nw = aw * qw - ax * qx - ay * qy - az * qz
+            inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz + nw * nw)
+            pos0[0] = px + dx
+            pos0[1] = py + dy
+            pos0[2] = pz + dz
+            quat0[0] = nx * inv
+            quat0[1] = ny * inv
+            quat0[2] = nz * inv
+            quat0[3] = nw * inv
+        ik(self._pos, self._quat)
+        np.subtract(length, ml0, x)
+        np.multiply(k, x, f)
+        ik.structure_matrix()
+        np.matmul(AT, f, out=g6)
+        np.add(g6, w, g6)
+        g6.take(rows, None, g)
+        res = math.sqrt(float(np.dot(g, g)))
+        if not math.isfinite(res):
+            self._have_pose = False
+            raise FloatingPointError(f"elasto-static FK diverged (residual {res}); the next tick starts again "
+                                     "from the geometric FK")
+        return res
