@@ -220,22 +220,14 @@ class Predictor:
             self._pos[...] = res.position
             self._quat[...] = res.orientation
             self._have_pose = True
-        ik, rows = self.ik, self._rows
-        k, x, f, g6, g = self._fk_k, self._fk_x, self._fk_f, self._fk_g6, self._fk_g
+        rows, k, g = self._rows, self._fk_k, self._fk_g
         ATr, ATrT, ATk, K, Kdiag = self._fk_ATr, self._fk_ATrT, self._fk_ATk, self._fk_K, self._fk_Kdiag
-        dp, dp6, scatter = self._fk_dp, self._fk_dp6, self._fk_scatter
-        AT, w, length = self._AT0, self._w0, self._len0
+        dp, dp6, scatter, AT = self._fk_dp, self._fk_dp6, self._fk_scatter, self._AT0
         pos0, quat0 = self._pos0, self._quat0
         np.divide(self._ea, ml0, out=k)
         damp = 1.0 + self.fk_damping
         for _ in range(self.fk_iterations):          # a fixed count, not a data-dependent loop
-            ik(self._pos, self._quat)
-            np.subtract(length, ml0, x)
-            np.multiply(k, x, f)
-            ik.structure_matrix()
-            np.matmul(AT, f, out=g6)
-            np.add(g6, w, g6)
-            g6.take(rows, None, g)
+            self._fk_wrench()
             AT.take(rows, 0, ATr)
             np.multiply(ATr, k, out=ATk)
             np.matmul(ATk, ATrT, out=K)               # A^T K A over the solved rows
@@ -261,16 +253,22 @@ class Predictor:
             quat0[1] = ny * inv
             quat0[2] = nz * inv
             quat0[3] = nw * inv
-        ik(self._pos, self._quat)
-        np.subtract(length, ml0, x)
-        np.multiply(k, x, f)
-        ik.structure_matrix()
-        np.matmul(AT, f, out=g6)
-        np.add(g6, w, g6)
-        g6.take(rows, None, g)
+        self._fk_wrench()
         res = math.sqrt(float(np.dot(g, g)))
         if not math.isfinite(res):
             self._have_pose = False
             raise FloatingPointError(f"elasto-static FK diverged (residual {res}); the next tick starts again "
                                      "from the geometric FK")
         return res
+
+    def _fk_wrench(self) -> None:
+        """IK at the current pose, linear forces f = EA/l0 x, and the wrench residual
+        A^T f + w over the solved rows, into ``_fk_g``."""
+        ik, g6 = self.ik, self._fk_g6
+        ik(self._pos, self._quat)
+        np.subtract(self._len0, self._ml0, self._fk_x)
+        np.multiply(self._fk_k, self._fk_x, self._fk_f)
+        ik.structure_matrix()
+        np.matmul(self._AT0, self._fk_f, out=g6)
+        np.add(g6, self._w0, g6)
+        g6.take(self._rows, None, self._fk_g)
