@@ -56,6 +56,9 @@ def test_reversal_amplitude_is_known_from_the_sample_that_confirms_the_turn():
     assert reversal_amplitude(x, 0.5).tolist() == expect
     # columns are cables; a mirrored cable has the same amplitude
     np.testing.assert_array_equal(reversal_amplitude(np.c_[x, -x], 0.5), np.c_[expect, expect])
+    # no samples, or one: no reversal, the input's shape
+    assert reversal_amplitude(np.zeros(0)).shape == (0,) and reversal_amplitude(np.zeros((0, 3))).shape == (0, 3)
+    assert reversal_amplitude(np.ones((1, 2))).tolist() == [[0.0, 0.0]]
 
 
 @pytest.mark.parametrize("quantum", [1e-8, 1e-7])

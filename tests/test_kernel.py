@@ -89,6 +89,25 @@ def test_fk_without_pose_finds_equilibrium(ipanema):
     assert np.linalg.norm(o3.position - p_eq) < 0.01
 
 
+def test_fk_recovers_after_a_tick_it_cannot_solve(ipanema):
+    """Infinite motor lengths make the FK's system singular (NaN, not an exception, from
+    the solve): that tick raises, and the next good tick starts again from the geometric
+    FK instead of warm-starting from a NaN pose, with or without reset()."""
+    g, L = ipanema
+    params = default_params(g.ea, L, "linear")
+    ml = L - 60.0 / (g.ea / L)
+    for call_reset in (False, True):
+        pred = Predictor(g, params)
+        good = pred.tick(0.0, ml).position.copy()
+        with pytest.raises(FloatingPointError, match="FK diverged"), np.errstate(invalid="ignore"):
+            pred.tick(0.001, np.full(g.n_cables, np.inf))
+        if call_reset:
+            pred.reset()
+        o = pred.tick(0.002, ml)
+        assert np.all(np.isfinite(o.force)) and o.fk_residual < 1e-3
+        assert np.allclose(o.position, good, atol=1e-6)
+
+
 def test_slack_flag_and_residual(ipanema):
     g, L = ipanema
     pred = Predictor(g, default_params(g.ea, L, "linear"))

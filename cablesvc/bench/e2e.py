@@ -206,7 +206,7 @@ def _passthrough_daemon(config_path: str) -> None:
     msg = {"robot": robot.name, "seq": 0, "t": 0.0, "stamp_ns": 0, "cables": list(robot.geometry().cable_names),
            "force": [60.0 + v for v in third], "elongation": [v * 1e-4 for v in third], "wrap_angle": third,
            "slack": [False] * m, "measured": [60.0 + v / 7 for v in third], "residual": [v / 7 for v in third],
-           "wrench_residual": third[:6], "position": [0.0, 0.0, 0.0], "orientation": [0.0, 0.0, 0.0, 1.0],
+           "wrench_residual": [(k + 1) / 3.0 for k in range(6)], "position": [0.0, 0.0, 0.0], "orientation": [0.0, 0.0, 0.0, 1.0],
            "amplitude": [v * 1e-3 for v in third], "temperature": None, "pose_from_fk": False, "fk_residual": 0.0}
 
     def sink(tick) -> None:
@@ -218,7 +218,8 @@ def _passthrough_daemon(config_path: str) -> None:
 
     try:
         source.open()
-        source.set_sink(sink)
+        for tick in source.set_sink(sink):          # ticks accepted before the sink was set
+            sink(tick)
         while not stop.wait(0.05):
             source.problems()
     finally:

@@ -21,12 +21,14 @@ for SCHED_FIFO priority, the settings deploy/README.md recommends for production
 from __future__ import annotations
 
 import gc
+import os
 import time
 import tracemalloc
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
+import cablesvc
 from cablesvc.config import load_robot
 from cablesvc.config.params import ModelParams, default_params, load_params
 from cablesvc.kernel import Predictor
@@ -35,7 +37,8 @@ from cablesvc.kinematics import inverse_kinematics
 INPUTS = ("normal", "reversal", "slack", "large", "no_pose")
 #: where the kernel's memory is allocated: tracemalloc sees every thread, and the progress
 #: bar's refresh thread must not count as the kernel's
-_KERNEL_FILES = (tracemalloc.Filter(True, "*cablesvc*"), tracemalloc.Filter(True, "*numpy*"))
+_KERNEL_FILES = tuple(tracemalloc.Filter(True, os.path.join(os.path.dirname(mod.__file__), "*"))
+                      for mod in (cablesvc, np))
 #: the machine baseline alternates with the kernel in blocks of this many ticks: close in
 #: time (same machine conditions) without evicting the kernel's caches every tick
 BLOCK = 500

@@ -172,7 +172,7 @@ def reversal_amplitude(x: np.ndarray, tol: float = 2e-6) -> np.ndarray:
     the sample where the later one is confirmed on and held until the next; 0 before two
     reversals. ``tol`` [m]: the reversal dead-band of :func:`reversal_points`."""
     xa = np.asarray(x, dtype=np.float64)
-    cols = xa.reshape(xa.shape[0], -1)
+    cols = xa.reshape(xa.shape[0], int(np.prod(xa.shape[1:])))     # (N, cables), also for N = 0
     out = np.zeros(cols.shape)
     samples = np.arange(cols.shape[0])
     for c in range(cols.shape[1]):

@@ -135,10 +135,19 @@ class Predictor:
 
     # -- state ------------------------------------------------------------------------
     def reset(self, x0: np.ndarray | None = None) -> None:
-        """Forget the history: the next tick starts the model at rest."""
+        """Forget the history: the next tick starts the model at rest, and without a pose
+        on the bus the FK starts again from the geometric FK (from the last pose when it is
+        finite, else from the home pose)."""
         self.state = None
         self._t_prev = None
         self._have_pose = False
+        if not (np.isfinite(self._pos).all() and np.isfinite(self._quat).all()):
+            self._home_pose()
+
+    def _home_pose(self) -> None:
+        self._pos.fill(0.0)
+        self._quat.fill(0.0)
+        self._quat[0, 3] = 1.0
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """Everything needed to continue exactly where this kernel is (hysteresis state,
@@ -256,7 +265,9 @@ class Predictor:
         self._fk_wrench()
         res = math.sqrt(float(np.dot(g, g)))
         if not math.isfinite(res):
+            # (a singular system gives NaN, not an exception): do not warm-start from it
             self._have_pose = False
+            self._home_pose()
             raise FloatingPointError(f"elasto-static FK diverged (residual {res}); the next tick starts again "
                                      "from the geometric FK")
         return res
