@@ -51,6 +51,21 @@ def test_run_embedded_default_runs_and_stops_cleanly():
     assert '"rejected": {}' in line, line
 
 
+def test_run_view_shows_an_alarm_raised_before_any_tick():
+    """With the terminal view on (the default) and a bus that never sends, input_lost is
+    raised before the first tick, so its `since` is null: the view shows "-" and the daemon
+    runs its time and exits 0."""
+    from cablesvc.sources.controller import free_tcp_port
+
+    r = cli("run", "--robot", "ipanema3", "--source", "can", "--interface", "virtual", "--channel", "cablesvc-silent",
+            "--no-snapshot", "--seconds", "3", "--listen", f"tcp/127.0.0.1:{free_tcp_port()}")
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr and "view failed" not in r.stderr
+    assert "input_lost" in r.stdout
+    line = next(x for x in r.stderr.splitlines() if "stopped in" in x)
+    assert "after 0 ticks" in line
+
+
 def test_run_rejects_flags_of_another_source():
     r = cli("run", "--source", "replay", "--host", "1.2.3.4")
     assert r.returncode != 0 and "--host does not apply to --source replay" in r.stderr

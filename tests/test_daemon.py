@@ -334,3 +334,45 @@ def test_pipeline_baseline_passes_every_tick_through_with_the_daemons_message_sh
     assert check_schema(got[-1][0], FORCES_SCHEMA) == []
     assert run["status"]["input"]["accepted"] == sent
     assert run["status"]["published"] == sent
+
+
+def test_recording_has_every_alarm_raise_before_its_clear_and_status_survives_close(tmp_path: Path):
+    """A replay whose controller pauses 0.3 s: input_stale is raised by the daemon's watch
+    (outside a tick) and cleared by the next tick. The --record MCAP must hold both, raise
+    first, and status() after close() still says what the publisher put and skipped."""
+    import json
+    import threading
+
+    from mcap.reader import make_reader
+
+    from cablesvc.recording import write_recording
+    from cablesvc.service.daemon import Daemon, DaemonOptions
+    from cablesvc.simulate import simulate_recording
+    from cablesvc.sources.controller import free_tcp_port
+
+    rec = simulate_recording("planar4", "trajectory", None, duration=1.0, rate=100.0, seed=1)
+    rec.t[50:] += 0.3
+    write_recording(tmp_path / "gap.mcap", rec)
+    robot = load_robot("planar4")
+    d = Daemon(DaemonOptions(robot=robot, params=nominal_params(robot.geometry()),
+                             source={"kind": "replay", "path": str(tmp_path / "gap.mcap"), "speed": 1},
+                             record=tmp_path / "out.mcap", listen=(f"tcp/127.0.0.1:{free_tcp_port()}",)))
+    try:
+        d.run(threading.Event())
+        before = d.status()
+    finally:
+        d.close()
+    after = d.status()
+    assert before["ticks"] == after["ticks"] == 100
+    # no subscriber: nothing was put, every tick was skipped, before and after close
+    assert (before["published"], before["skipped_no_subscriber"]) == (0, 100)
+    assert (after["published"], after["skipped_no_subscriber"]) == (0, 100)
+    with open(tmp_path / "out.mcap", "rb") as f:
+        alarms = [json.loads(m.data) for _s, _c, m in make_reader(f).iter_messages(topics=["/cablesvc/alarms"])]
+    events = [(a["action"], a["code"], a.get("cable")) for a in alarms]
+    assert ("raise", "input_stale", None) in events and ("clear", "input_stale", None) in events
+    state: dict = {}
+    for action, code, cable in events:
+        if action == "clear":
+            assert state.get((code, cable)) == "raise", f"clear of {code} without a raise before it: {events}"
+        state[(code, cable)] = action

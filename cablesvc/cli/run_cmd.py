@@ -553,6 +553,11 @@ def _run_fleet(args, cfg: dict[str, Any], file: str) -> int:
     return 1 if failed else 0
 
 
+def _since(v) -> str:
+    """An alarm's ``since`` [s] for the view: null (raised before the first tick) is "-"."""
+    return "-" if v is None else f"{v:.2f}"
+
+
 def _view(robots, stop: threading.Event, alive: Callable[[], bool], deadline) -> None:
     """Live terminal view of forces and alarms (main thread), refreshed eight times a second:
     one forces table per robot (``robots``: (daemon, robot, geometry) tuples) and the
@@ -561,6 +566,7 @@ def _view(robots, stop: threading.Event, alive: Callable[[], bool], deadline) ->
     from rich.console import Group
     from rich.live import Live
     from rich.table import Table
+    from rich.text import Text
 
     several = len(robots) > 1
 
@@ -588,12 +594,25 @@ def _view(robots, stop: threading.Event, alive: Callable[[], bool], deadline) ->
             for a in st["alarms_active"]:
                 al.add_row(*((robot.name,) if several else ()), a["code"],
                            "" if a.get("cable") is None else geom.cable_names[a["cable"]], a["severity"],
-                           f"{a.get('since', 0):.2f}", a["message"])
+                           _since(a.get("since")), a["message"])
         return Group(*parts, al)
 
-    with Live(render(), refresh_per_second=8, transient=False) as live:
+    failed = [False]
+
+    def safe_render():
+        # the view is a window on the daemon, never a reason for it to stop: a view that
+        # cannot draw says why (once in the log) and the loop goes on
+        try:
+            return render()
+        except Exception as e:  # noqa: BLE001
+            if not failed[0]:
+                logging.getLogger("cablesvc.run").exception("the terminal view failed; the daemon keeps running")
+                failed[0] = True
+            return Text(f"terminal view failed ({e!r}); the daemon keeps running, see the log")
+
+    with Live(safe_render(), refresh_per_second=8, transient=False) as live:
         while alive() and not stop.is_set():
             stop.wait(0.125)
-            live.update(render())
+            live.update(safe_render())
             if deadline is not None and time.monotonic() >= deadline:
                 stop.set()

@@ -25,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import os
 import queue
 import sys
@@ -150,7 +151,9 @@ def read_snapshot(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray], di
 # ---- MCAP recorder ---------------------------------------------------------------------
 
 class Recorder:
-    """MCAP writer thread: the loop hands it (input, forces payload, alarm payloads) tuples.
+    """MCAP writer thread: the loop hands it (input, forces payload, alarm payloads) tuples,
+    and (None, t, alarm payloads) for alarms raised or cleared outside a tick (input stale,
+    lost or faulty).
 
     The queue is bounded; when the disk cannot keep up, ticks are dropped and counted
     (``dropped``), and the loop never waits.
@@ -184,6 +187,10 @@ class Recorder:
                 continue
             tick, forces, alarms = item
             try:
+                if tick is None:                   # alarms outside a tick: forces is their time
+                    for a in alarms:
+                        self.writer.write(self._alarms_topic, forces, a)
+                    continue
                 self.writer.write_input(tick.seq, tick.t, tick.motor_length, tick.force, tick.position,
                                         tick.orientation, tick.temperature)
                 self.writer.write(self._forces_topic, tick.t, forces)
@@ -270,6 +277,7 @@ class Daemon:
         self.source = source
         self.recorder: Recorder | None = None
         self.publisher = None
+        self._closed_counts = (0, 0)              # (published, skipped) when the publisher closed
         try:
             if publisher_factory is None:
                 from cablesvc.service.zenoh_io import Publisher, make_config
@@ -365,8 +373,8 @@ class Daemon:
             "version": __version__,
             "uptime_s": round(time.monotonic() - s.started, 3),
             "ticks": s.ticks,
-            "published": getattr(self.publisher, "forces_published", s.published),
-            "skipped_no_subscriber": getattr(self.publisher, "forces_skipped", 0),
+            "published": getattr(self.publisher, "forces_published", self._closed_counts[0]),
+            "skipped_no_subscriber": getattr(self.publisher, "forces_skipped", self._closed_counts[1]),
             "publish_errors": s.publish_errors,      # ticks (or alarms) whose put raised: not published
             "tick_rate_hz": round(self.tick_rate(), 3),
             "latency_us": lat,
@@ -471,6 +479,7 @@ class Daemon:
             self._fault_count = 0
 
     def _emit(self, ev) -> None:
+        """Publish (and record) an alarm event raised or cleared outside a tick."""
         p = ev.payload()
         try:
             self.publisher.publish_alarm(p)
@@ -479,6 +488,10 @@ class Daemon:
             log.error("publishing an alarm failed: %s", e)
         if p.get("action") == "raise":
             self.stats.alarms_raised += 1
+        if self.recorder is not None:
+            # log time: the event's controller time; before the first tick there is none
+            t = ev.t if ev.t is not None and math.isfinite(ev.t) else (self.stats.last_t or 0.0)
+            self.recorder.put((None, t, (p,)))
 
     def _problem(self, reason: str, message: str) -> None:
         from cablesvc.sources.base import Problem
@@ -550,6 +563,9 @@ class Daemon:
             self.recorder.close()
             self.recorder = None
         if self.publisher is not None:
+            # status() after close reports what the publisher put and skipped, not the calls
+            self._closed_counts = (getattr(self.publisher, "forces_published", self.stats.published),
+                                   getattr(self.publisher, "forces_skipped", 0))
             try:
                 self.publisher.close()
             except Exception as e:  # noqa: BLE001
