@@ -124,6 +124,11 @@ LOOPBACK_GROUP_IPV6 = "ff11::c0:ab1e"
 LOOPBACK_GROUP_IPV4 = "239.255.42.99"
 #: Default UDP port of :func:`loopback_bus_config`.
 LOOPBACK_PORT = 43117
+#: A frame time this much [s] (beyond the deadline) earlier than the newest frame time seen
+#: means the clock was stepped back (NTP, an operator): :class:`TickAssembler` re-bases.
+CLOCK_STEP_MARGIN_S = 0.1
+#: Reasons :class:`TickAssembler` returns that are events (counted in ``events``), not rejections.
+EVENT_REASONS = frozenset({"clock_step"})
 
 _POSE_SIGNALS = ("position_x", "position_y", "position_z",
                  "orientation_qx", "orientation_qy", "orientation_qz", "orientation_qw")
@@ -1198,6 +1203,14 @@ class TickAssembler:
     :meth:`expire` checks them against ``bus_time`` (default ``time.time()``) when the bus
     is quiet. A frame without a timestamp (0) gets ``time.time()``.
 
+    Clock steps: a frame time more than ``deadline_s`` + :data:`CLOCK_STEP_MARGIN_S` earlier
+    than the newest frame time seen cannot be a queued or late frame (those come in time
+    order): the clock was stepped back (NTP). The assembler re-bases its bus time on the new
+    clock (pending ticks keep their age) and returns one ``clock_step`` item (a
+    :class:`~cablesvc.sources.base.Rejection` whose reason is in :data:`EVENT_REASONS`: an
+    event, nothing was refused), so ticks keep flowing instead of all expiring until the
+    clock catches up.
+
     Cost: a data frame is a dict lookup, a counter read and a list store (its bytes are
     kept as they came); the SYNC decodes the whole tick with one numpy gather
     (:class:`FrameCodec` plans laid end to end).
@@ -1248,8 +1261,11 @@ class TickAssembler:
         """Take one frame; return the ticks it completed and the rejections it caused
         (including ticks whose deadline passed by this frame's time)."""
         ts = msg.timestamp or time.time()
+        step: Optional[Rejection] = None
         if ts > self._bus_now:
             self._bus_now = ts
+        elif ts < self._bus_now - self.deadline - CLOCK_STEP_MARGIN_S:
+            step = self._rebase(ts)
         slot = (self._ext if msg.is_extended_id else self._std).get(msg.arbitration_id)
         data = msg.data
         if (slot is None or msg.is_error_frame or msg.is_remote_frame or len(data) != slot.length
@@ -1279,7 +1295,23 @@ class TickAssembler:
                 p.count += 1
         if self._bus_now - self._earliest > self.deadline:
             out.extend(self.expire(bus_time=self._bus_now))
+        if step is not None:
+            out.insert(0, step)
         return out
+
+    def _rebase(self, ts: float) -> Rejection:
+        """The clock went back: move bus time to ``ts``, shifting pending and rejected ticks'
+        times with it (they keep their age)."""
+        shift = ts - self._bus_now
+        for p in self._pending.values():
+            p.first += shift
+        for d in self._dead.values():
+            d.since += shift
+        self._earliest += shift
+        self._bus_now = ts
+        return Rejection("clock_step",
+                         f"frame time went back {-shift:.3f} s (clock stepped back?): deadlines re-based on the "
+                         f"new clock, {len(self._pending)} pending tick(s) kept")
 
     def _start(self, counter: int, ts: float) -> _Partial:
         p = self._pending[counter] = _Partial(ts, self._blank.copy())
@@ -1564,7 +1596,9 @@ class CanSource(ThreadedSource):
     it and queues it for :meth:`recv`. ``config.fd``: the bus is opened with ``fd=True``
     and the default DBC is ``<robot>-fd.dbc``; a DBC with CAN FD frames needs it. A bus
     error is reported (``disconnected``) and the bus is reopened with backoff (0.05 s
-    doubling to 2 s) until it works again or the source is closed. cablesvc only listens:
+    doubling to 2 s, reset once frames flow) until it works again (``reconnected``: one pair
+    per outage) or the source is closed; the open happens outside the lock :meth:`close`
+    takes, so a slow adapter does not hold up :meth:`close`. cablesvc only listens:
     it never transmits on the bus.
     """
 
@@ -1590,7 +1624,9 @@ class CanSource(ThreadedSource):
         self.assembler = TickAssembler(self.layout, config.deadline_s)
         self._bus: Optional[can.BusABC] = None
         self._bus_lock = threading.Lock()
-        self._down_since: Optional[float] = None
+        self._down_since: Optional[float] = None  # monotonic time the current outage began
+        self._reopen_attempts = 0
+        self._opening = False  # the receive thread is inside _open_bus
 
     def _seq_bits(self) -> Optional[int]:
         return self.layout.seq_bits
@@ -1645,17 +1681,10 @@ class CanSource(ThreadedSource):
         while not self._stop.is_set():
             bus = self._bus
             if bus is None:
-                try:
-                    with self._bus_lock:
-                        if self._stop.is_set():
-                            return
-                        self._bus = bus = self._open_bus()
-                    down = time.monotonic() - (self._down_since or time.monotonic())
-                    self._report("reconnected", f"bus open again after {down:.2f} s", kind="event")
-                    self._down_since = None
-                    backoff = 0.05
-                except Exception:  # noqa: BLE001 - any driver error: retry
-                    self._stop.wait(backoff)
+                bus = self._reopen()
+                if bus is None:
+                    if self._stop.wait(backoff):
+                        return
                     backoff = min(2.0, backoff * 2)
                     continue
             nxt = asm.next_deadline()
@@ -1664,10 +1693,16 @@ class CanSource(ThreadedSource):
                 msg = bus.recv(timeout=timeout)
             except Exception as exc:  # noqa: BLE001 - python-can raises CanError and OSError
                 self._bus_failed(bus, exc)
+                if self._stop.wait(backoff):  # a bus that opens but fails at once must not spin
+                    return
+                backoff = min(2.0, backoff * 2)
                 continue
+            if self._down_since is not None:  # it opened and a receive worked: the outage is over
+                self._bus_back()
             if msg is None:  # the bus is quiet: nothing is queued, so what is missing now is late
                 self._handle(asm.expire())
                 continue
+            backoff = 0.05  # frames flow again
             # drain what is queued without waiting, handing each tick on as it completes
             while msg is not None:
                 events = asm.feed(msg, time.monotonic_ns())
@@ -1679,37 +1714,80 @@ class CanSource(ThreadedSource):
                     msg = bus.recv(0.0)
                 except Exception as exc:  # noqa: BLE001
                     self._bus_failed(bus, exc)
+                    if self._stop.wait(backoff):
+                        return
+                    backoff = min(2.0, backoff * 2)
                     break
+
+    def _reopen(self) -> Optional[can.BusABC]:
+        """Open the bus (outside ``_bus_lock``: a slow open must not hold up :meth:`close`)
+        and install it; None when it failed or the source is closing."""
+        self._reopen_attempts += 1
+        self._opening = True
+        try:
+            bus = self._open_bus()
+        except Exception:  # noqa: BLE001 - any driver error: retry
+            return None
+        finally:
+            self._opening = False
+        with self._bus_lock:
+            stopping = self._stop.is_set()
+            if not stopping:
+                self._bus = bus
+        if stopping:  # close() came while it was opening: nobody else will shut it down
+            try:
+                bus.shutdown()
+            except Exception:  # noqa: BLE001
+                pass
+            return None
+        return bus
+
+    def _bus_back(self) -> None:
+        down = time.monotonic() - (self._down_since or time.monotonic())
+        tries = self._reopen_attempts
+        self._report("reconnected",
+                     f"bus working again after {down:.2f} s ({tries} reopen attempt{'s' if tries != 1 else ''})",
+                     kind="event")
+        self._down_since = None
+        self._reopen_attempts = 0
 
     def _handle(self, events: list[Union[TickInput, Rejection]]) -> None:
         for ev in events:
             if type(ev) is TickInput:
                 self._deliver(ev)
+            elif ev.reason in EVENT_REASONS:
+                self._report(ev.reason, ev.message, kind="event")
             else:
                 self._report(ev.reason, ev.message)
 
     def _bus_failed(self, bus: can.BusABC, exc: BaseException) -> None:
-        if self._stop.is_set():
+        """Drop a bus whose receive failed; report ``disconnected`` once per outage (a bus
+        that reopens but fails again at once is the same outage)."""
+        with self._bus_lock:
+            if self._bus is bus:
+                self._bus = None
+        try:
+            bus.shutdown()
+        except Exception:  # noqa: BLE001
+            pass
+        if self._stop.is_set() or self._down_since is not None:
             return
         self._down_since = time.monotonic()
-        self._report("disconnected", f"bus error: {exc!r}; reopening with backoff", kind="event")
-        with self._bus_lock:
-            try:
-                bus.shutdown()
-            except Exception:  # noqa: BLE001
-                pass
-            self._bus = None
+        self._reopen_attempts = 0
+        self._report("disconnected", f"bus error: {exc!r}; reopening with backoff up to 2 s", kind="event")
 
     def close(self) -> None:
         """Stop the receive thread and shut the bus down (idempotent, < 1 s)."""
         if self._closed:
             return
         self._closed = True
-        self._join_thread(0.9)
+        self._stop.set()
+        # a thread inside a (possibly slow) bus open shuts that bus down itself when it returns
+        self._join_thread(0.1 if self._opening else 0.9)
         with self._bus_lock:
-            if self._bus is not None:
-                try:
-                    self._bus.shutdown()
-                except Exception:  # noqa: BLE001
-                    pass
-                self._bus = None
+            bus, self._bus = self._bus, None
+        if bus is not None:
+            try:
+                bus.shutdown()
+            except Exception:  # noqa: BLE001
+                pass
