@@ -6,16 +6,19 @@ polls it at ``rate_hz`` with pymodbus' ``AsyncModbusTcpClient`` on its own async
 a background thread. It only ever calls read functions (``read_holding_registers``, 0x03,
 or ``read_input_registers``, 0x04, as the map says): it never writes to the controller.
 
-The whole map is read in as few contiguous requests as possible (one for the shipped map)
-so that one poll sees one tick. When the map needs several requests, the one holding ``seq``
-is sent first and ``seq`` is read again after the last; the poll is dropped as
-``torn_read`` if it changed in between. A poll that
+The whole map is read in as few contiguous requests as possible (one for the shipped map),
+never splitting a 2- or 4-register value across two requests, so that one poll sees one
+tick. When the map needs several requests, the one holding ``seq`` is sent first and
+``seq`` is read again after the last; the poll is dropped as ``torn_read`` if it changed in
+between. A poll that
 sees the same ``seq`` as the previous poll is the same tick again (polling faster than the
 controller ticks is normal) and is counted in ``counters.unchanged``, not as a problem.
 
 Connection loss is reported once (``disconnected``), the client reconnects with backoff
 (0.05 s doubling to 2 s) for as long as the source is open, and ``reconnected`` is
-reported when it is back. Exception responses become ``modbus_error`` problems.
+reported after the first successful read. A server that accepts connections but fails every
+read is one outage: the backoff is reset only by a successful read. Exception responses
+become ``modbus_error`` problems.
 """
 
 from __future__ import annotations
@@ -183,6 +186,7 @@ class RegisterMap:
                 problems.append(f"{path}: fields.{name}.stride: {stride} is less than the {width} registers of {f.type}")
             if f.scale == 0:
                 problems.append(f"{path}: fields.{name}.scale: must not be 0")
+            missing: Optional[Union[int, float]] = f.missing
             if f.missing is not None:
                 if is_int:
                     lo, hi = _INT_RANGE[f.type]
@@ -190,13 +194,22 @@ class RegisterMap:
                         problems.append(f"{path}: fields.{name}.missing: {f.missing!r} is not a raw {f.type} value")
                 elif not isinstance(f.missing, (int, float)):
                     problems.append(f"{path}: fields.{name}.missing: must be a number")
+                else:
+                    # compare with the value the registers can hold: -999.9 stored as float32
+                    # reads back as -999.9000244..., which would never equal -999.9
+                    try:
+                        missing = struct.unpack(">" + code, struct.pack(">" + code, float(f.missing)))[0]
+                    except (OverflowError, struct.error):
+                        problems.append(f"{path}: fields.{name}.missing: {f.missing!r} cannot be stored "
+                                        f"as {f.type}")
+                        missing = None
             els = []
             for i in range(count):
                 addr = f.address + i * stride
                 if addr + width > 65536:
                     problems.append(f"{path}: fields.{name}: element {i} at {addr} runs past register 65535")
                 els.append(_Element(name, i, addr, code, width, is_int, float(f.scale), float(f.offset),
-                                    f.word_order == "little", f.missing))
+                                    f.word_order == "little", missing))
             self.elements[name] = els
         seq = spec.fields.seq
         if seq.type not in ("uint16", "uint32") or seq.scale != 1 or seq.offset != 0 or seq.missing is not None:
@@ -215,20 +228,24 @@ class RegisterMap:
         if problems:
             raise SourceConfigError(f"register map {path}: {len(problems)} problem(s):\n" + "\n".join(problems))
         self.seq_bits = 16 if seq.type == "uint16" else 32
-        plan = self._plan(sorted(owner), spec.max_gap)
+        plan = self._plan(sorted((e.address, e.width) for els in self.elements.values() for e in els),
+                          spec.max_gap)
         # the span holding seq goes first: with several requests, seq is read again after
         # the last one, and an unchanged seq proves every span in between saw one tick
         first = next(k for k, (a, n) in enumerate(plan) if a <= seq.address < a + n)
         self.read_plan = [plan[first]] + plan[:first] + plan[first + 1:]
 
     @staticmethod
-    def _plan(used: list[int], max_gap: int) -> list[tuple[int, int]]:
-        spans: list[list[int]] = []
-        for a in used:
-            if spans and a - spans[-1][1] <= max_gap + 1 and a - spans[-1][0] < MAX_REGISTERS_PER_READ:
-                spans[-1][1] = a
+    def _plan(values: list[tuple[int, int]], max_gap: int) -> list[tuple[int, int]]:
+        """Requests covering ``values`` ((address, width), sorted, not overlapping), whole
+        values only: a 2- or 4-register value is never split across two requests."""
+        spans: list[list[int]] = []  # [first, last] register of each request
+        for a, w in values:
+            last = a + w - 1
+            if spans and a - spans[-1][1] <= max_gap + 1 and last - spans[-1][0] < MAX_REGISTERS_PER_READ:
+                spans[-1][1] = max(spans[-1][1], last)
             else:
-                spans.append([a, a])
+                spans.append([a, last])
         return [(lo, hi - lo + 1) for lo, hi in spans]
 
     # ------------------------------------------------------------------ decode
@@ -501,31 +518,43 @@ class ModbusSource(ThreadedSource):
                         await asyncio.sleep(backoff)
                         backoff = min(2.0, backoff * 2)
                         continue
-                    if down_since is not None:
-                        self._report("reconnected", f"connected again after {time.monotonic() - down_since:.2f} s",
-                                     kind="event")
-                        down_since = None
-                    backoff = 0.05
+                    # ``reconnected`` and the backoff reset wait for a successful read: a
+                    # server that accepts and then fails every read is still one outage
                     next_poll = time.monotonic()
                 blocks: Optional[dict[int, list[int]]] = None
                 try:
                     blocks = await self._read(client)
-                    if multi:
-                        again = await self._read_seq(client)
-                        if again != self.register_map.raw_seq(blocks):
-                            self._report("torn_read", f"seq changed from {self.register_map.raw_seq(blocks)} to "
-                                                      f"{again} while the map was being read; poll dropped")
-                            blocks = None
+                    again = await self._read_seq(client) if multi else None
                 except _ModbusErrorResponse as exc:
                     self._report("modbus_error", str(exc))
                 except asyncio.CancelledError:
                     raise
                 except Exception as exc:  # noqa: BLE001 - pymodbus raises ModbusException, OSError, TimeoutError
-                    down_since = time.monotonic()
-                    self._report("disconnected", f"connection lost: {exc!r}; reconnecting with backoff", kind="event")
+                    if down_since is None:
+                        down_since = time.monotonic()
+                        self._report("disconnected", f"connection lost: {exc!r}; reconnecting with backoff up to 2 s",
+                                     kind="event")
                     client.close()
                     client = None
+                    await asyncio.sleep(backoff)
+                    backoff = min(2.0, backoff * 2)
                     continue
+                if blocks is not None:
+                    backoff = 0.05
+                    if down_since is not None:
+                        self._report("reconnected", f"connected again after {time.monotonic() - down_since:.2f} s",
+                                     kind="event")
+                        down_since = None
+                    try:
+                        first = self.register_map.raw_seq(blocks)
+                    except Exception as exc:  # noqa: BLE001 - a bad reply is a bad frame, not a lost link
+                        self._report("bad_frame", f"cannot decode the seq register: {exc!r}")
+                        blocks = None
+                    else:
+                        if multi and again != first:
+                            self._report("torn_read", f"seq changed from {first} to {again} while the map "
+                                                      f"was being read; poll dropped")
+                            blocks = None
                 if blocks is not None:
                     stamp = time.monotonic_ns()
                     seq = self.register_map.raw_seq(blocks)
@@ -557,6 +586,8 @@ class ModbusSource(ThreadedSource):
         rr = await fn(e.address, count=e.width, device_id=self.config.unit)
         if rr.isError():
             raise _ModbusErrorResponse(f"seq register {e.address}: exception response {rr!s}")
+        if len(rr.registers) < e.width:
+            raise _ModbusErrorResponse(f"seq register {e.address}: got {len(rr.registers)} values")
         return self.register_map.raw_seq({e.address: list(rr.registers)})
 
     def close(self) -> None:
