@@ -51,7 +51,7 @@ from cablesvc.recording import (
     write_recording,
 )
 from cablesvc.sources.base import Rejection, SourceConfigError, TickInput, TickValidator
-from cablesvc.sources.can_source import TickAssembler, encode_tick, load_can_layout
+from cablesvc.sources.can_source import EVENT_REASONS, TickAssembler, encode_tick, load_can_layout
 from cablesvc.sources.modbus_source import RegisterMap, load_register_map
 
 ROBOTS = Path(__file__).resolve().parents[1] / "robots"
@@ -63,7 +63,8 @@ FUZZ = settings(max_examples=150, deadline=None, derandomize=False,
                                        HealthCheck.data_too_large, HealthCheck.filter_too_much])
 FUZZ_SLOW = settings(FUZZ, max_examples=100)
 
-ASSEMBLER_REASONS = {"missing_frames", "bad_frame", "late_frame", "nonfinite"}
+# rejections, and the events (a clock step: frames with times far apart) the assembler reports
+ASSEMBLER_REASONS = {"missing_frames", "bad_frame", "late_frame", "nonfinite"} | EVENT_REASONS
 VALIDATOR_REASONS = {"bad_shape", "nonfinite", "out_of_range", "bad_quaternion", "duplicate_seq",
                      "seq_backwards", "time_backwards"}
 

@@ -89,8 +89,8 @@ class Problem:
     stable code (``nonfinite``, ``out_of_range``, ``bad_shape``, ``bad_quaternion``,
     ``time_backwards``, ``duplicate_seq``, ``seq_backwards``, ``missing_frames``,
     ``bad_frame``, ``late_frame``, ``modbus_error``, ``torn_read``, ``recording_error``,
-    ``queue_overflow``; events: ``disconnected``, ``reconnected``, ``resync``,
-    ``truncated``, ``robot_mismatch``); ``message``: what and where, in words; ``kind``:
+    ``time_jump``, ``queue_overflow``; events: ``disconnected``, ``reconnected``, ``resync``,
+    ``truncated``, ``robot_mismatch``, ``time_jump``); ``message``: what and where, in words; ``kind``:
     ``"rejected"`` (an input was refused) or ``"event"`` (something happened to the link).
     """
 
@@ -112,11 +112,15 @@ class Rejection:
 class SourceCounters:
     """What a source has seen since it was created.
 
-    ``accepted``: ticks delivered; ``rejected``: refused ticks/frames by reason;
+    ``accepted``: ticks delivered (a tick that passed the checks but was then dropped from a
+    full queue is moved from ``accepted`` to ``rejected["queue_overflow"]``, so that
+    ``accepted`` + ``rejected`` counts every tick once); ``rejected``: refused ticks/frames
+    by reason;
     ``events``: non-rejections by reason (``disconnected``, ``reconnected``, ``resync``, ...);
     ``unchanged``: polls that saw the same tick again (Modbus polling faster than the
     controller; normal, not an error); ``missed_ticks``: gaps in ``seq`` between accepted
-    ticks (ticks the source never delivered, whatever the cause); ``problems_dropped``:
+    ticks (ticks the source never delivered, whatever the cause; a tick dropped from a full
+    queue is counted as ``queue_overflow`` instead); ``problems_dropped``:
     problems lost because nobody drained :meth:`Source.problems` in time.
     """
 
@@ -179,7 +183,9 @@ class TickValidator:
     new tick (the wrap-around is followed), and the accepted tick's ``seq`` is unwrapped
     into a count that keeps increasing. ``resync_after``: after that many consecutive order
     rejections (a controller restart: its clock and counter start again) the next tick is
-    accepted as the start of a new timeline and :attr:`resync_note` says so.
+    accepted as the start of a new timeline and :attr:`resync_note` says so. An exact repeat
+    of the last accepted tick (same ``seq``, same ``t``: a frozen controller) is always
+    ``duplicate_seq`` and never counts towards a resync.
 
     :meth:`check` counts into :attr:`counters` (shared with the owning source).
     """
@@ -357,6 +363,12 @@ class TickValidator:
                 step = seq - self.last_seq
             order: Optional[Rejection] = None
             if step == 0:
+                if t == self.last_t:
+                    # the very same tick again (a frozen controller, a repeated frame): never a
+                    # sign of a restart, so it neither counts towards nor triggers a resync
+                    return Rejection(
+                        "duplicate_seq", f"{where}: seq {seq} and t repeat the last accepted tick exactly"
+                    ), None
                 order = Rejection("duplicate_seq", f"{where}: seq {seq} repeats the last accepted tick")
             elif step < 0:
                 order = Rejection(
@@ -500,7 +512,7 @@ class Source(ABC):
 class ThreadedSource(Source):
     """A :class:`Source` whose ticks arrive on a background thread and wait in a bounded
     queue until :meth:`recv` takes them (``queue_size`` ticks; when it is full the oldest
-    tick is dropped and counted as ``queue_overflow``)."""
+    tick is dropped and counted as ``queue_overflow`` instead of ``accepted``)."""
 
     queue_size: ClassVar[int] = 4096
 
@@ -564,6 +576,10 @@ class ThreadedSource(Source):
                     old = self._queue.get_nowait()
                 except queue.Empty:
                     continue
+                # the dropped tick was counted as accepted when it passed the checks: it is
+                # not delivered after all, so it moves to rejected (queue_overflow); both
+                # counts change on this (the receive) thread
+                self.counters.accepted -= 1
                 self._report(
                     "queue_overflow",
                     f"tick seq {old.seq} dropped: {self.queue_size} ticks waiting, the reader is not keeping up",

@@ -7,6 +7,14 @@ is the release time. With ``loop`` the file is played again and again; on each p
 ``t`` and ``seq`` are shifted so that they keep increasing (by the span of the file plus
 one tick), the data itself repeats as recorded.
 
+A step forward in ``t`` of more than ``max_gap_s`` (controller seconds) is never waited
+for. When the tick after it is back before the jump, the far tick is a corrupted clock
+value: it is rejected (``time_jump``, naming the tick) and the replay goes on. When the tick
+after it follows on from it (or there is none), the recording really jumps: the event
+``time_jump`` is reported and pacing starts again from that tick, released at once. After a
+``resync`` (a controller restart in the recording) pacing also starts again from the
+resynchronised tick. Every wait of :meth:`recv` ends by its ``timeout``.
+
 A file that cannot be read, a message that is broken, or a file that was cut short
 (``truncated``: the ticks before the cut are played) becomes a :class:`Problem`, never an
 exception out of :meth:`recv`; a replay whose file ends in an error is finished after its
@@ -15,6 +23,7 @@ good ticks (or, with ``loop``, plays them again; a pass with no tick at all fini
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from pathlib import Path
@@ -25,7 +34,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from cablesvc.config.robot import Robot
 from cablesvc.recording import RecordingError, RecordingTruncatedWarning, iter_inputs, read_metadata
-from cablesvc.sources.base import Source, TickInput
+from cablesvc.sources.base import Source, TickInput, TickValidator
 
 __all__ = ["ReplaySource", "ReplaySourceConfig"]
 
@@ -34,7 +43,9 @@ class ReplaySourceConfig(BaseModel):
     """``kind = "replay"``: play a recording file.
 
     ``path``: ``.mcap`` or ``.csv`` (recording format 1); ``speed``: time scale (1.0 real
-    time, 2.0 twice as fast, 0 as fast as possible); ``loop``: start again at the end.
+    time, 2.0 twice as fast, 0 as fast as possible); ``loop``: start again at the end;
+    ``max_gap_s``: the largest step forward in ``t`` [s] that is waited for (see the module
+    docstring).
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -43,6 +54,7 @@ class ReplaySourceConfig(BaseModel):
     path: Path
     speed: float = Field(default=1.0, ge=0, allow_inf_nan=False)
     loop: bool = False
+    max_gap_s: float = Field(default=3600.0, gt=0, allow_inf_nan=False)
 
 
 class ReplaySource(Source):
@@ -58,8 +70,9 @@ class ReplaySource(Source):
         self._it: Optional[Iterator[Any]] = None
         self._pending: Optional[TickInput] = None
         self._pending_release_ns = 0
+        self._lookahead: Optional[TickInput] = None  # read to judge a jump in t, not yet played
         self._origin_ns = 0
-        self._t0: Optional[float] = None  # file t of the first tick of the first pass
+        self._t0: Optional[float] = None  # t released at _origin_ns (pacing base)
         self._pass = 0
         self._pass_ticks = 0
         self._t_shift = 0.0
@@ -132,8 +145,7 @@ class ReplaySource(Source):
                     warnings.simplefilter("always", RecordingTruncatedWarning)
                     d = next(self._it)
                 self._warned(caught)
-            except StopIteration as stop:
-                del stop
+            except StopIteration:
                 self._warned(caught)
                 if not self._end_of_pass():
                     return None
@@ -189,39 +201,118 @@ class ReplaySource(Source):
         return True
 
     # ------------------------------------------------------------------ recv
+    def _take(self) -> Optional[TickInput]:
+        """The next tick to play: the one read ahead, else the next of the file."""
+        if self._lookahead is not None:
+            tick, self._lookahead = self._lookahead, None
+            return tick
+        return self._next_raw()
+
+    @staticmethod
+    def _finite_t(tick: Optional[TickInput]) -> Optional[float]:
+        try:
+            t = float(tick.t) if tick is not None else math.nan
+        except (TypeError, ValueError):
+            return None
+        return t if math.isfinite(t) else None
+
+    def _rebase(self, t: float, now_ns: int) -> None:
+        """Pace the following ticks from ``t`` released at ``now_ns``."""
+        self._t0 = t
+        self._origin_ns = now_ns
+
+    def _next_to_release(self) -> Optional[TickInput]:
+        """The next tick to release with its release time set; a tick too far ahead in ``t``
+        is rejected or starts a new pacing base (see the module docstring). None when the
+        replay is finished."""
+        max_gap = self.config.max_gap_s
+        while True:
+            tick = self._take()
+            if tick is None:
+                return None
+            t = self._finite_t(tick)
+            now = time.monotonic_ns()
+            if self._t0 is None:
+                if t is None:                     # no base yet: play it now (the checks refuse it)
+                    self._pending_release_ns = 0
+                    return tick
+                self._rebase(t, now)
+            ref = self._validator.last_t
+            if t is not None and ref is not None and t - ref > max_gap:
+                nxt = self._lookahead = self._next_raw()
+                t_next = self._finite_t(nxt)
+                follows = nxt is None or (t_next is not None and t < t_next <= t + max_gap)
+                where = TickValidator._where(tick)
+                if not follows:
+                    self._report(
+                        "time_jump",
+                        f"{where}: t jumps {t - ref:.6g} s past the last accepted t {ref!r} s (more than "
+                        f"max_gap_s {max_gap:g} s) and the next tick is not after it: a corrupted clock "
+                        f"value, not waited for",
+                    )
+                    continue
+                self._report(
+                    "time_jump",
+                    f"{where}: t jumps {t - ref:.6g} s past the last accepted t {ref!r} s (more than "
+                    f"max_gap_s {max_gap:g} s); released now, pacing starts again from this tick",
+                    kind="event",
+                )
+                self._rebase(t, now)
+            speed = self.config.speed
+            if speed == 0 or t is None or self._t0 is None:
+                self._pending_release_ns = 0
+            else:
+                delay = (t - self._t0) / speed * 1e9
+                if not math.isfinite(delay) or delay > 2.0**62:
+                    delay = 2.0**62                # (tiny speed) later than any timeout: ~146 years
+                self._pending_release_ns = self._origin_ns + max(0, int(delay))
+            return tick
+
+    def _sleep_until(self, target_ns: int) -> bool:
+        """Sleep until ``target_ns`` (monotonic), in steps of at most 0.5 s; False when the
+        source was closed meanwhile."""
+        while True:
+            if self._closed:
+                return False
+            left = target_ns - time.monotonic_ns()
+            if left <= 0:
+                return True
+            time.sleep(min(left, 500_000_000) / 1e9)
+
     def recv(self, timeout: Optional[float] = None) -> Optional[TickInput]:
         """The next valid tick at its release time; None when ``timeout`` [s] passes first
         (the tick is kept for the next call) or when the replay is finished."""
         if not self._opened:
             self.open()
-        deadline = None if timeout is None else time.monotonic_ns() + int(max(0.0, timeout) * 1e9)
+        deadline = None
+        if timeout is not None:
+            span = max(0.0, float(timeout)) * 1e9
+            if span < 2.0**62:                     # longer (or NaN) waits as if None
+                deadline = time.monotonic_ns() + int(span)
         while True:
+            if self._closed:
+                return None
             if self._pending is None:
-                tick = self._next_raw()
+                tick = self._next_to_release()
                 if tick is None:
                     return None
-                if self._t0 is None:
-                    self._t0 = tick.t
-                    self._origin_ns = time.monotonic_ns()
-                speed = self.config.speed
                 self._pending = tick
-                self._pending_release_ns = (
-                    0 if speed == 0 else self._origin_ns + int((tick.t - self._t0) / speed * 1e9)
-                )
+            release = self._pending_release_ns
             now = time.monotonic_ns()
-            wait = self._pending_release_ns - now
-            if wait > 0:
-                if deadline is not None and deadline < self._pending_release_ns:
+            if release > now:
+                if deadline is not None and deadline < release:
                     if deadline > now:
-                        time.sleep((deadline - now) / 1e9)
+                        self._sleep_until(deadline)
                     return None
-                if wait > 200_000:
-                    time.sleep((wait - 100_000) / 1e9)
-                while time.monotonic_ns() < self._pending_release_ns:
+                if release - now > 200_000 and not self._sleep_until(release - 100_000):
+                    return None
+                while time.monotonic_ns() < release:
                     pass
             tick, self._pending = self._pending, None
             tick.stamp_ns = time.monotonic_ns()
             if self._admit(tick):
+                if self._validator.resync_note is not None and self._finite_t(tick) is not None:
+                    self._rebase(tick.t, tick.stamp_ns)   # a restarted controller clock: pace from here
                 return tick
             if deadline is not None and time.monotonic_ns() >= deadline:
                 return None
