@@ -24,7 +24,9 @@ the cable's state does not change):
    S+ = max(0, S+ + (zc - k) dt), S- = max(0, S- + (-zc - k) dt)   [N s],
    k = ``cusum_k_n`` (half the smallest offset worth detecting). The last time a side was
    zero estimates when the change started; the mean of z since then estimates its size.
-5. **Raise** when S+ or S- exceeds h = ``cusum_h_ns`` continuously for ``raise_hold_s``.
+5. **Raise** when S+ or S- exceeds h = ``cusum_h_ns`` continuously for ``raise_hold_s``
+   (a hold or warm-up timer that started after the current t, i.e. the controller clock
+   restarted or an older snapshot was restored, restarts at t).
    The event carries ``since`` (change start), ``offset_n`` (the larger in magnitude of the
    mean of z since the change start and the EWMA: right for a step and for a ramp).
 6. **Clear** when |e| < ``clear_n`` (< k: hysteresis) continuously for ``clear_hold_s``;
@@ -146,7 +148,8 @@ def _drift_sample(S, P, t, r, i, E, ne, row):
     if r != r:                                   # NaN: no measurement, skipped
         return ne
     if S[_READY, i] == 0.0:                      # warm-up: learn the baseline
-        if S[_W_T0, i] != S[_W_T0, i]:
+        # first sample, or the clock went back: (re)start the timer
+        if S[_W_T0, i] != S[_W_T0, i] or t < S[_W_T0, i]:
             S[_W_T0, i] = t
         S[_W_SUM, i] += r
         S[_W_N, i] += 1.0
@@ -173,7 +176,8 @@ def _drift_sample(S, P, t, r, i, E, ne, row):
     h = P[_P_H]
     if S[_ACTIVE, i] == 0.0:
         if S[_CU, i] > h or S[_CL, i] > h:
-            if S[_RAISE_SINCE, i] != S[_RAISE_SINCE, i]:
+            # not pending (NaN), or the clock went back: (re)start the timer
+            if S[_RAISE_SINCE, i] != S[_RAISE_SINCE, i] or t < S[_RAISE_SINCE, i]:
                 S[_RAISE_SINCE, i] = t
             if t - S[_RAISE_SINCE, i] >= P[_P_RAISE_HOLD]:
                 if S[_CU, i] >= S[_CL, i]:
@@ -207,7 +211,8 @@ def _drift_sample(S, P, t, r, i, E, ne, row):
             S[_RAISE_SINCE, i] = _NAN
     else:
         if abs(S[_EWMA, i]) < P[_P_CLEAR]:
-            if S[_CLEAR_SINCE, i] != S[_CLEAR_SINCE, i]:
+            # not pending (NaN), or the clock went back: (re)start the timer
+            if S[_CLEAR_SINCE, i] != S[_CLEAR_SINCE, i] or t < S[_CLEAR_SINCE, i]:
                 S[_CLEAR_SINCE, i] = t
             if t - S[_CLEAR_SINCE, i] >= P[_P_CLEAR_HOLD]:
                 E[ne, _E_ROW] = row
@@ -418,6 +423,16 @@ class DriftDetector:
         if S.shape != self._S.shape:
             raise ValueError(f"drift state of shape {S.shape} does not fit {self.n_cables} cables")
         self._S[...] = S
+
+    def deactivate(self) -> None:
+        """Drop every cable's active alarm and pending raise/clear, keeping the baseline and
+        the statistics (for a restored state whose detector is disabled in this config).
+        Raises no clear event."""
+        S = self._S
+        S[_ACTIVE] = 0.0
+        S[_SIDE] = 0.0
+        for row in (_RAISE_SINCE, _CLEAR_SINCE, _SINCE, _OFFSET):
+            S[row] = np.nan
 
     def describe_state(self) -> dict[str, list[float]]:
         """Named rows of the state (for debugging and tests)."""

@@ -35,6 +35,8 @@ from cablesvc.config.robot import RobotGeometry
 
 __all__ = ["AlarmConfig", "AlarmManager", "load_alarm_config"]
 
+_STATE_CODES = ("slack", "over_limit", "amplitude_range", "wrench_residual")
+
 
 class AlarmConfig(BaseModel):
     """All alarm settings: ``drift``, ``state`` and ``input`` sections."""
@@ -141,19 +143,39 @@ class AlarmManager:
             "counters": np.array(json.dumps(self.counters)),
         }
 
+    def _enabled(self, code: str | None) -> bool:
+        """Whether the detector of alarm ``code`` runs with this manager's config."""
+        if code == "drift":
+            return self._drift_on
+        if code in _STATE_CODES:
+            return self.state.enabled(code)
+        return True
+
     def load_state_dict(self, d: dict[str, Any]) -> None:
         """Continue from :meth:`state_dict` (also after a save/load through ``np.savez``,
-        where strings come back as 0-d arrays or numpy strings). Missing parts are skipped."""
+        where strings come back as 0-d arrays or numpy strings). Missing parts are skipped.
+
+        Alarms whose detector is disabled in this config (e.g. ``[alarms.state] slack =
+        false`` or ``[alarms.drift] enabled = false``) are dropped: they could never clear
+        and would be written into every later snapshot. Their per-channel state restarts
+        inactive. No clear event is published for them: nothing was raised in this run, so
+        a subscriber of this run has nothing to clear (the status query no longer lists
+        them). The same holds for the wall-clock input alarms, which never survive a restart.
+        """
         if "drift" in d and "state" in d["drift"]:
             self.drift.load_state_dict(d["drift"])
+            if not self._drift_on:
+                self.drift.deactivate()
         if "state" in d and "state" in d["state"]:
-            self.state.load_state_dict(d["state"])
+            self.state.load_state_dict(d["state"])       # zeroes the disabled channels itself
         if "active" in d:
             active = json.loads(str(np.asarray(d["active"])[()]))
             self._active = {}
             for p in active:
                 if p.get("code") in ("input_stale", "input_lost"):
                     continue              # wall-clock alarms do not survive a restart
+                if not self._enabled(p.get("code")):
+                    continue              # detector disabled now: it would never clear
                 e = AlarmEvent.from_payload(p)
                 self._active[e.key] = e
         if "counters" in d:

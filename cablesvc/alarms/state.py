@@ -102,16 +102,22 @@ _KINDS = ("slack", "over_limit", "amplitude_range", "wrench_residual")
  _P_AMP, _P_AMP_LO, _P_AMP_HI, _P_AMP_TOL, _P_AMP_RH, _P_AMP_CH,
  _P_WR, _P_WR_RAISE, _P_WR_CLEAR, _P_WR_RH, _P_WR_CH, _P_PLANAR) = range(20)
 _NP = 20
+_KIND_FLAG = {"slack": _P_SLACK, "over_limit": _P_OVER, "amplitude_range": _P_AMP, "wrench_residual": _P_WR}
 # event records (C, 5): channel, action (+1 raise, -1 clear), since, value, limit
 _E_CH, _E_ACTION, _E_SINCE, _E_VALUE, _E_LIMIT = range(5)
 
 
 @_jit_inline
 def _hold(ST, c, t, raise_cond, clear_cond, raise_hold, clear_hold):
-    """Hold-time state machine of channel c at time t: +1 raised, -1 cleared, 0 nothing."""
+    """Hold-time state machine of channel c at time t: +1 raised, -1 cleared, 0 nothing.
+
+    A pending raise/clear whose start lies after t (the controller clock restarted, or a
+    snapshot of an older run was restored) restarts its hold timer at t; otherwise a timer
+    from the old time base would hold the alarm back for the old uptime."""
     if ST[_ACTIVE, c] == 0.0:
         if raise_cond:
-            if ST[_RAISE_SINCE, c] != ST[_RAISE_SINCE, c]:
+            # not pending (NaN), or the clock went back: (re)start the timer
+            if ST[_RAISE_SINCE, c] != ST[_RAISE_SINCE, c] or t < ST[_RAISE_SINCE, c]:
                 ST[_RAISE_SINCE, c] = t
             if t - ST[_RAISE_SINCE, c] >= raise_hold:
                 ST[_ACTIVE, c] = 1.0
@@ -123,7 +129,8 @@ def _hold(ST, c, t, raise_cond, clear_cond, raise_hold, clear_hold):
             ST[_RAISE_SINCE, c] = math.nan
     else:
         if clear_cond:
-            if ST[_CLEAR_SINCE, c] != ST[_CLEAR_SINCE, c]:
+            # not pending (NaN), or the clock went back: (re)start the timer
+            if ST[_CLEAR_SINCE, c] != ST[_CLEAR_SINCE, c] or t < ST[_CLEAR_SINCE, c]:
                 ST[_CLEAR_SINCE, c] = t
             if t - ST[_CLEAR_SINCE, c] >= clear_hold:
                 ST[_ACTIVE, c] = 0.0
@@ -310,11 +317,24 @@ class StateAlarms:
         """Alarm states (active, pending since, ...) per channel, numeric only."""
         return {"state": self._ST.copy()}
 
+    def enabled(self, kind: str) -> bool:
+        """Whether alarm ``kind`` (one of slack, over_limit, amplitude_range,
+        wrench_residual) runs with this config (amplitude_range also needs a known range)."""
+        return self._P[_KIND_FLAG[kind]] != 0.0
+
     def load_state_dict(self, d: dict[str, np.ndarray]) -> None:
+        """Continue from :meth:`state_dict`. The channels of alarms disabled in this config
+        restart inactive with no pending timer: they would never run again to clear."""
         ST = np.asarray(d["state"], dtype=np.float64)
         if ST.shape != self._ST.shape:
             raise ValueError(f"state-alarm state of shape {ST.shape} does not fit {self.n_cables} cables")
         self._ST[...] = ST
+        m = self.n_cables
+        for k, kind in enumerate(_KINDS):            # channels k m .. k m + m (wrench: one)
+            if not self.enabled(kind):
+                ch = slice(k * m, k * m + (1 if kind == "wrench_residual" else m))
+                self._ST[_ACTIVE, ch] = 0.0
+                self._ST[_RAISE_SINCE:, ch] = np.nan
 
 
 class InputWatch:
