@@ -16,9 +16,10 @@ many as ``l0..``. An empty cell is NaN except in ``t`` and ``seq``. Errors name 
 
 from __future__ import annotations
 
+import csv
 import math
 import re
-from typing import Iterator, Optional, TextIO
+from typing import BinaryIO, Iterator, Optional
 
 import numpy as np
 
@@ -33,6 +34,8 @@ from .format import (
 POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 _CABLE_COLUMN = re.compile(r"^([lf])(0|[1-9][0-9]*)$")
 _NAN = math.nan
+_INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
+_BOM = b"\xef\xbb\xbf"
 
 
 def csv_header(n_cables: int, has_force: bool, has_temperature: bool) -> list[str]:
@@ -108,22 +111,54 @@ class _CsvSource:
     def __init__(self, path: PathArg, robot_cables: Optional[int] = None):
         self.path = str(path)
         try:
-            self._f: TextIO = open(path, "r", encoding="utf-8-sig", newline=None)
+            # Binary, decoded line by line: a decode error names the physical line (a text
+            # wrapper decodes blocks ahead of the line being parsed).
+            self._f: BinaryIO = open(path, "rb")
         except FileNotFoundError:
             raise RecordingError(path, "file", "no such file") from None
         except OSError as e:
             raise RecordingError(path, "file", f"cannot open: {e.strerror or e}") from None
+        self._lines = self._physical_lines()
         try:
             self._read_head(robot_cables)
-        except UnicodeDecodeError as e:
-            self._f.close()
-            raise RecordingError(path, "file", f"not a UTF-8 text file: {e}") from None
         except BaseException:
             self._f.close()
             raise
 
     def close(self) -> None:
         self._f.close()
+
+    def _physical_lines(self) -> Iterator[tuple[int, str]]:
+        """Yield ``(line number, text without line end)``; ``\n``, ``\r\n`` and ``\r``
+        end a line (as in an editor). A UTF-8 BOM at the start is skipped."""
+        lineno = 0
+        first = True
+        for raw in self._f:
+            if first:
+                first = False
+                if raw.startswith(_BOM):
+                    raw = raw[3:]
+            parts = raw.splitlines() if b"\r" in raw else (raw.rstrip(b"\n"),)
+            for b in parts:
+                lineno += 1
+                try:
+                    text = b.decode("utf-8")
+                except UnicodeDecodeError as e:
+                    raise self._err(
+                        lineno, None, f"not UTF-8 text: byte {b[e.start]:#04x} at column "
+                        f"{len(b[:e.start].decode('utf-8')) + 1} ({e.reason})"
+                    ) from None
+                yield lineno, text
+
+    def _split(self, line: str, lineno: int) -> list[str]:
+        """The fields of one line: a plain split, or the csv module when there are quotes
+        (a third-party CSV writer quotes names or empty cells, e.g. QUOTE_NONNUMERIC)."""
+        if '"' not in line:
+            return line.split(",")
+        try:
+            return next(csv.reader((line,), strict=True))
+        except csv.Error as e:
+            raise self._err(lineno, None, f"malformed CSV quoting: {e}") from None
 
     def _err(self, line: int, column: Optional[str], reason: str) -> RecordingError:
         where = f"line {line}" if column is None else f"line {line}, column {column}"
@@ -133,12 +168,14 @@ class _CsvSource:
         self.metadata: dict[str, str] = {}
         lineno = 0
         header_line: Optional[str] = None
-        for raw in self._f:
-            lineno += 1
-            line = raw.rstrip("\n")
+        for lineno, line in self._lines:
             stripped = line.strip()
             if not stripped:
                 continue
+            if stripped.startswith('"#'):  # a metadata line quoted by a CSV writer
+                fields = self._split(stripped, lineno)
+                if len(fields) == 1 and fields[0].startswith("#"):
+                    stripped = fields[0].strip()
             if stripped.startswith("#"):
                 body = stripped[1:]
                 if ":" in body:
@@ -164,7 +201,7 @@ class _CsvSource:
             )
         self.header_lineno = lineno
         self.lineno = lineno
-        names = [c.strip() for c in header_line.split(",")]
+        names = [c.strip() for c in self._split(header_line, lineno)]
         self.names = names
         self._parse_header(names, lineno, robot_cables)
 
@@ -246,10 +283,9 @@ class _CsvSource:
         seq_col = self.seq_col
         cols = list(zip(self.float_cols, self.float_names))
         lineno = self.lineno
+        split = self._split
         try:
-            for raw in self._f:
-                lineno += 1
-                line = raw.rstrip("\n")
+            for lineno, line in self._lines:
                 if not line.strip():
                     continue
                 if line.lstrip().startswith("#"):
@@ -257,7 +293,7 @@ class _CsvSource:
                         lineno, None, "'#' line after the header (metadata lines must come "
                         "before it)"
                     )
-                parts = line.split(",")
+                parts = line.split(",") if '"' not in line else split(line, lineno)
                 if len(parts) != n_fields:
                     raise self._err(
                         lineno,
@@ -272,6 +308,10 @@ class _CsvSource:
                     what = "empty (seq is required)" if not s.strip() else (
                         f"{s.strip()!r} is not an integer")
                     raise self._err(lineno, "seq", what) from None
+                if not _INT64_MIN <= seq <= _INT64_MAX:
+                    raise self._err(
+                        lineno, "seq", f"{seq} does not fit in a signed 64-bit integer"
+                    )
                 vals = []
                 for j, name in cols:
                     s = parts[j]
@@ -289,8 +329,6 @@ class _CsvSource:
                         else f"t must be finite, got {parts[cols[0][0]].strip()!r}"
                     )
                 yield seq, vals
-        except UnicodeDecodeError as e:
-            raise self._err(lineno + 1, None, f"not UTF-8 text: {e}") from None
         finally:
             self.lineno = lineno
 
@@ -339,8 +377,6 @@ def read_csv(path: PathArg, *, robot_cables: Optional[int] = None) -> Recording:
     finally:
         src.close()
     n, m = len(rows), src.n_cables
-    if any(not (-(2**63) <= s < 2**63) for s in seqs):
-        raise RecordingError(path, "column seq", "a seq value does not fit in 64 bits")
     F = np.array(rows, dtype=np.float64).reshape(n, len(src.float_cols))
 
     def part(a: np.ndarray) -> Optional[np.ndarray]:

@@ -111,12 +111,18 @@ def _encode_payload(payload: dict) -> bytes:
 
 
 def _log_time(t: float) -> int:
-    if not (0.0 <= t <= _LOG_TIME_MAX_S):
+    ns = round(t * 1e9) if 0.0 <= t <= _LOG_TIME_MAX_S else -1
+    if not 0 <= ns < 2**64:  # t at the very top rounds up to 2**64
         raise ValueError(
-            f"t = {t!r} s cannot be an MCAP log_time (unsigned 64-bit ns): need 0 <= t <= "
+            f"t = {t!r} s cannot be an MCAP log_time (unsigned 64-bit ns): need 0 <= t < "
             f"{_LOG_TIME_MAX_S:.4g} and finite"
         )
-    return round(t * 1e9)
+    return ns
+
+
+def _part_or_null(lst: list) -> Optional[list]:
+    """``None`` (JSON null) for a part whose values are all non-finite (already None)."""
+    return None if all(v is None for v in lst) else lst
 
 
 class _DirectFile:
@@ -233,8 +239,10 @@ class McapRecordingWriter:
     ) -> None:
         """Write one tick on ``/cablesvc/input`` (log_time = t in ns).
 
-        Arrays may be numpy arrays or sequences; non-finite values are written as null.
+        Arrays may be numpy arrays or sequences; non-finite values are written as null,
+        and a pose (force) whose values are all non-finite as a null pose (force).
         ``position`` and ``orientation`` ([qx, qy, qz, qw]) go together (both or neither).
+        ``seq`` must fit in a signed 64-bit integer.
         The first tick fixes the cable count; later ticks must match it.
         """
         self._check_open()
@@ -242,6 +250,8 @@ class McapRecordingWriter:
             if isinstance(seq, (bool, np.bool_)) or not isinstance(seq, (int, np.integer)):
                 raise TypeError(f"seq must be an integer, got {type(seq).__name__}")
             seq = int(seq)
+        if not _INT64_MIN <= seq <= _INT64_MAX:
+            raise ValueError(f"seq = {seq} does not fit in a signed 64-bit integer")
         t = float(t)
         log_time = _log_time(t)
         ml = _float_list(motor_length, "motor_length", self._n_cables)
@@ -249,15 +259,19 @@ class McapRecordingWriter:
             if not ml:
                 raise ValueError("motor_length is empty: a robot has at least one cable")
             self._n_cables = len(ml)
-        f = None if force is None else _float_list(force, "force", self._n_cables)
+        f = None if force is None else _part_or_null(
+            _float_list(force, "force", self._n_cables)
+        )
         if position is None and orientation is None:
             pose = None
         elif position is None or orientation is None:
             raise ValueError("position and orientation must be given together")
         else:
-            pose = {
-                "position": _float_list(position, "position", 3),
-                "orientation": _float_list(orientation, "orientation", 4),
+            pos = _float_list(position, "position", 3)
+            ori = _float_list(orientation, "orientation", 4)
+            # All non-finite: no pose (null), as write_mcap and the readers treat it.
+            pose = None if _part_or_null(pos + ori) is None else {
+                "position": pos, "orientation": ori
             }
         temp = None
         if temperature is not None:
@@ -375,8 +389,10 @@ def write_mcap(
 
     ``robot`` overrides ``rec.robot`` (needed when it is empty, e.g. a CSV without
     metadata). ``rec.extra`` payloads are written on their topics with log_time from their
-    ``t`` field, each after the input tick with the same or the next smaller ``t``; the
-    documented output topics get their schema, other topics a plain ``{"type": "object"}``.
+    ``t`` field, each topic's payloads in their list order (the order a reader finds them
+    in): a payload goes after the input tick with the same or the next smaller ``t``, but
+    never before the payloads listed before it on its topic. The documented output topics
+    get their schema, other topics a plain ``{"type": "object"}``.
     """
     problems = rec.shape_problems()
     if problems:
@@ -384,14 +400,19 @@ def write_mcap(
     robot = robot or rec.robot
     if not robot:
         raise ValueError(f"{path}: the recording has no robot name; pass robot=...")
-    pending: list[tuple[float, str, dict]] = []
+    # One queue per topic, in the topic's own order (never re-sorted: a reader gets each
+    # topic's payloads back in file order, so sorting by t would reorder them).
+    queues: list[tuple[str, list[tuple[float, dict]]]] = []
     for topic, payloads in rec.extra.items():
+        q = []
         for p in payloads:
             pt = p.get("t") if isinstance(p, dict) else None
             if not isinstance(pt, (int, float)) or isinstance(pt, bool):
                 raise ValueError(f"{path}: extra payload on {topic} has no numeric 't'")
-            pending.append((float(pt), topic, p))
-    pending.sort(key=lambda e: e[0])
+            q.append((float(pt), p))
+        if q:
+            queues.append((topic, q))
+    heads = [0] * len(queues)
 
     n = rec.n_ticks
     t = rec.t.tolist()
@@ -411,7 +432,6 @@ def write_mcap(
                 w.register_topic(topic)
             else:
                 w.register_topic(topic, topic, {"type": "object"})
-        j = 0
         for i in range(n):
             p = q = None
             if pos is not None and ori is not None and not (
@@ -424,11 +444,20 @@ def write_mcap(
             w.write_input(
                 seq[i], t[i], ml[i], f, p, q, None if temp is None else temp[i]
             )
-            while j < len(pending) and pending[j][0] <= t[i]:
-                w.write(pending[j][1], pending[j][0], pending[j][2])
-                j += 1
-        for pt, topic, payload in pending[j:]:
-            w.write(topic, pt, payload)
+            for k, (topic, q) in enumerate(queues):
+                h = heads[k]
+                while h < len(q) and q[h][0] <= t[i]:
+                    w.write(topic, q[h][0], q[h][1])
+                    h += 1
+                heads[k] = h
+        while True:  # the rest, merged by t at the heads of the queues
+            live = [k for k in range(len(queues)) if heads[k] < len(queues[k][1])]
+            if not live:
+                break
+            k = min(live, key=lambda k: queues[k][1][heads[k]][0])
+            pt, payload = queues[k][1][heads[k]]
+            w.write(queues[k][0], pt, payload)
+            heads[k] += 1
 
 
 # ===================================================================== reading helpers
@@ -543,9 +572,22 @@ def _numbers(v: Any, name: str, n: Optional[int], why: str = "") -> list:
         raise _BadField(name, f"has {len(v)} values, expected {n}{why}")
     for i, x in enumerate(v):
         tx = type(x)
-        if tx is not float and tx is not int and x is not None:
+        if tx is int:
+            v[i] = _to_float(x, f"{name}[{i}]")
+        elif tx is not float and x is not None:
             raise _BadField(f"{name}[{i}]", f"expected a number or null, got {_jtype(x)}")
     return v
+
+
+def _to_float(x: int, name: str) -> float:
+    """A JSON integer literal as a float; one beyond the float range is a bad field."""
+    try:
+        return float(x)
+    except OverflowError:
+        raise _BadField(
+            name, f"integer of {x.bit_length()} bits is too large for a 64-bit float "
+            "(beyond +-1.8e308)"
+        ) from None
 
 
 def _absent(v: list) -> bool:
@@ -738,6 +780,10 @@ class _McapSource:
                         raise RecordingError(
                             self.path, f"message {i} on {topic}", f"not valid JSON: {e}"
                         ) from None
+                    except RecursionError:
+                        raise RecordingError(
+                            self.path, f"message {i} on {topic}", "JSON nested too deeply"
+                        ) from None
                     yield topic, payload
                 elif cid not in channels:
                     raise RecordingError(
@@ -770,6 +816,8 @@ class _McapSource:
                 obj = json.loads(data)
             except ValueError as e:
                 raise _BadField("", f"not valid JSON: {e}") from None
+            except RecursionError:
+                raise _BadField("", "not valid JSON for format 1: nested too deeply") from None
             if type(obj) is not dict:
                 raise _BadField("", f"expected a JSON object, got {_jtype(obj)}")
             seq = obj.get("seq", _MISSING)
@@ -782,9 +830,10 @@ class _McapSource:
             t = obj.get("t", _MISSING)
             if t is _MISSING:
                 raise _BadField("t", "missing required field")
-            if type(t) is not float and type(t) is not int:
+            if type(t) is int:
+                t = _to_float(t, "t")
+            elif type(t) is not float:
                 raise _BadField("t", f"expected a number, got {_jtype(t)}")
-            t = float(t)
             if not math.isfinite(t):
                 raise _BadField("t", f"must be finite, got {t!r}")
             ml = obj.get("motor_length", _MISSING)
@@ -829,7 +878,7 @@ class _McapSource:
                     raise _BadField(
                         "temperature", f"expected a number or null, got {_jtype(temp)}"
                     )
-                temp = float(temp)
+                temp = _to_float(temp, "temperature") if type(temp) is int else temp
                 if temp != temp:
                     temp = None
         except _BadField as e:
