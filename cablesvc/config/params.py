@@ -26,8 +26,97 @@ import numpy as np
 
 from cablesvc.models import MODELS, AmplitudeDependent, CableModel, ModelParameterError
 from cablesvc.models.amplitude import TABLE_COLUMNS
+from cablesvc.models.boucwen import INTEGRATORS
 
 OPTION_KEYS = {"degree", "integrator", "substeps"}
+#: parameters that must be strictly positive, per model (the kernel divides by them)
+POSITIVE_PARAMS = {"amplitude": ("amplitude_init", "omega_init")}
+#: tables the amplitude model requires
+REQUIRED_TABLES = ("amplitudes", "K0", "K1")
+
+
+def _has_bool(v: Any) -> bool:
+    """Whether v is, or holds, a boolean (TOML true/false): booleans are not numbers here."""
+    if isinstance(v, (bool, np.bool_)):
+        return True
+    if isinstance(v, np.ndarray):
+        return v.dtype == bool
+    if isinstance(v, (list, tuple)):
+        return any(_has_bool(x) for x in v)
+    return False
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def _content_problems(model: str, params: dict, options: dict, tables: dict) -> list[str]:
+    """Value checks of [params], [options] and [tables] for a known model: one message per
+    problem, naming the field (shared by load_params and ModelParams.build)."""
+    problems = []
+    allowed = set(MODELS[model].extra_options()) | ({"degree"} if model == "polynomial" else set())
+    for k, v in options.items():
+        if k not in OPTION_KEYS:
+            continue      # reported by load_params; build passes it on to the model
+        if k not in allowed:
+            problems.append(f"options.{k}: not an option of the {model} model"
+                            + (f" (options: {sorted(allowed)})" if allowed else " (it has none)"))
+        elif k == "degree" and not (_is_int(v) and v >= 1 and v % 2 == 1):
+            problems.append(f"options.degree: must be an odd integer >= 1, got {v!r}")
+        elif k == "substeps" and not (_is_int(v) and v >= 1):
+            problems.append(f"options.substeps: must be an integer >= 1, got {v!r}")
+        elif k == "integrator" and not (isinstance(v, str) and v in INTEGRATORS):
+            problems.append(f"options.integrator: must be one of {list(INTEGRATORS)}, got {v!r}")
+    for k, v in params.items():
+        if _has_bool(v):
+            problems.append(f"params.{k}: must be a number or a list of numbers, got {v!r} (true/false is not a number)")
+            continue
+        try:
+            a = np.asarray(v, dtype=float)
+        except (TypeError, ValueError):
+            problems.append(f"params.{k}: must be a number or a list of numbers, got {v!r}"[:200])
+            continue
+        if not np.all(np.isfinite(a)):
+            problems.append(f"params.{k}: values must be finite")
+        elif k in POSITIVE_PARAMS.get(model, ()) and not np.all(a > 0):
+            problems.append(f"params.{k}: must be > 0, got {v!r}")
+    if model == "amplitude":
+        for k in REQUIRED_TABLES:
+            if k not in tables:
+                problems.append(f"tables.{k}: required for the amplitude model")
+    for k, v in tables.items():
+        if _has_bool(v):
+            problems.append(f"tables.{k}: must be a list of numbers, got {v!r} (true/false is not a number)"[:200])
+            continue
+        try:
+            a = np.asarray(v, dtype=float)
+        except (TypeError, ValueError):
+            problems.append(f"tables.{k}: must be a list of numbers, got {v!r}"[:200])
+            continue
+        if k == "amplitudes":
+            if a.ndim != 1 or a.size < 1 or not np.all(np.isfinite(a)) or np.any(a <= 0) or np.any(np.diff(a) <= 0):
+                problems.append(f"tables.amplitudes: must be a non-empty, strictly increasing list of finite "
+                                f"positive amplitudes [m], got {v!r}"[:200])
+        elif a.ndim not in (1, 2) or not np.all(np.isfinite(a)):
+            problems.append(f"tables.{k}: must be a list of finite numbers (one per level) or a list of "
+                            f"per-cable rows")
+    return problems
+
+
+def _amplitude_range_problems(r: Any) -> list[str]:
+    """identification.amplitude_range: two finite numbers lo, hi [m] with 0 <= lo <= hi, hi > 0.
+
+    lo = hi and lo = 0 are allowed: identification writes them for a single amplitude level
+    or a single fitted cable, and for a cable that did not move."""
+    ok = isinstance(r, (list, tuple)) and len(r) == 2 and all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) for x in r)
+    if ok:
+        lo, hi = float(r[0]), float(r[1])
+        ok = bool(np.isfinite(lo) and np.isfinite(hi) and 0 <= lo <= hi and hi > 0)
+    if ok:
+        return []
+    return [f"identification.amplitude_range: must be two finite amplitudes [lo, hi] in m with 0 <= lo <= hi and hi > 0, "
+            f"got {r!r}"[:200]]
 
 
 class ParamFileError(ValueError):
@@ -56,7 +145,9 @@ class ModelParams:
         if self.model not in MODELS:
             raise ParamFileError(self.source, [f"model: unknown model {self.model!r}; known: {sorted(MODELS)}"])
         cls = MODELS[self.model]
-        problems = []
+        problems = _content_problems(self.model, self.params, self.options, self.tables)
+        if problems:
+            raise ParamFileError(self.source, problems)
         for k, v in self.params.items():
             a = np.asarray(v, dtype=float)
             if a.ndim > 1 or (a.ndim == 1 and a.size != n_cables):
@@ -81,6 +172,8 @@ class ModelParams:
             raise ParamFileError(self.source, [str(e)]) from None
         except TypeError as e:
             raise ParamFileError(self.source, [f"options: {e}"]) from None
+        except ValueError as e:      # not expected after the checks above; never a traceback
+            raise ParamFileError(self.source, [f"{self.model} model: {e}"]) from None
 
     def amplitude_range(self) -> tuple[float, float] | None:
         """Elongation amplitudes [m] the parameters were identified on, if known."""
@@ -88,7 +181,11 @@ class ModelParams:
         if r is None and self.model == "amplitude" and "amplitudes" in self.tables:
             a = np.asarray(self.tables["amplitudes"], dtype=float)
             return float(a.min()), float(a.max())
-        return None if r is None else (float(r[0]), float(r[1]))
+        if r is None:
+            return None
+        if _amplitude_range_problems(r):
+            raise ParamFileError(self.source, _amplitude_range_problems(r))
+        return float(r[0]), float(r[1])
 
     def to_toml(self) -> str:
         """Serialise to the TOML format of this module."""
@@ -148,8 +245,9 @@ def load_params(path: str | Path) -> ModelParams:
     for k in raw:
         if k not in known:
             problems.append(f"{k}: unknown key (known: {sorted(known)})")
-    if raw.get("format") != 1:
-        problems.append(f"format: must be 1, got {raw.get('format')!r}")
+    fmt = raw.get("format")
+    if not (_is_int(fmt) and fmt == 1):
+        problems.append(f"format: must be the integer 1, got {fmt!r}")
     model = raw.get("model")
     if not isinstance(model, str) or model not in MODELS:
         problems.append(f"model: must be one of {sorted(MODELS)}, got {model!r}")
@@ -159,26 +257,19 @@ def load_params(path: str | Path) -> ModelParams:
     if isinstance(model, str) and model in MODELS:
         cls = MODELS[model]
         names = set(cls.param_names) if model != "polynomial" else None
-        for k, v in raw.get("params", {}).items():
+        for k in raw.get("params", {}):
             if names is not None and k not in names:
                 problems.append(f"params.{k}: not a parameter of the {model} model (parameters: {sorted(names)})")
-            try:
-                a = np.asarray(v, dtype=float)
-                if not np.all(np.isfinite(a)):
-                    problems.append(f"params.{k}: values must be finite")
-            except (TypeError, ValueError):
-                problems.append(f"params.{k}: must be a number or a list of numbers, got {v!r}")
-        for k, v in raw.get("tables", {}).items():
+        for k in raw.get("tables", {}):
             if k != "amplitudes" and k not in TABLE_COLUMNS:
                 problems.append(f"tables.{k}: unknown table (known: amplitudes, {', '.join(TABLE_COLUMNS)})")
-                continue
-            try:
-                a = np.asarray(v, dtype=float)
-                if a.ndim not in (1, 2) or not np.all(np.isfinite(a)):
-                    problems.append(f"tables.{k}: must be a list of finite numbers (one per level) or a list of "
-                                    f"per-cable rows")
-            except (TypeError, ValueError):
-                problems.append(f"tables.{k}: must be a list of numbers, got {v!r}"[:200])
+        if raw.get("tables") and model != "amplitude":
+            problems.append(f"tables: only the amplitude model has tables, not {model!r}")
+        known_tables = {k: v for k, v in raw.get("tables", {}).items() if k == "amplitudes" or k in TABLE_COLUMNS}
+        problems += _content_problems(model, raw.get("params", {}), raw.get("options", {}),
+                                      known_tables if model == "amplitude" else {})
+    if "amplitude_range" in raw.get("identification", {}):
+        problems += _amplitude_range_problems(raw["identification"]["amplitude_range"])
     if problems:
         raise ParamFileError(path, problems)
     return ModelParams(model=model, params=dict(raw.get("params", {})), options=dict(raw.get("options", {})),

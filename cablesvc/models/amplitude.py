@@ -117,6 +117,12 @@ class AmplitudeDependent(CableModel):
             raise ModelParameterError("amplitude: alpha must be >= 0")
         if np.any(self.params["reversal_deadband"] < 0):
             raise ModelParameterError("amplitude: reversal_deadband must be >= 0 [m]")
+        # the damping term divides by A and (A w)^alpha: a non-positive start value makes every
+        # force NaN until two reversals have been seen
+        if np.any(self.params["amplitude_init"] <= 0):
+            raise ModelParameterError("amplitude: amplitude_init must be > 0 [m]")
+        if np.any(self.params["omega_init"] <= 0):
+            raise ModelParameterError("amplitude: omega_init must be > 0 [rad/s]")
         self.amplitude_grid = grid
         self.tables = {k: np.array(v) for k, v in tables.items()}
         # uniform resampling, nearest-point lookup: with GRID_POINTS points the lookup error is

@@ -34,8 +34,9 @@ class BoucWenIntegrator:
     def __init__(self, shape, k_d, beta, gamma, n, integrator: str = "semi-implicit", substeps: int = 1):
         if integrator not in INTEGRATORS:
             raise ModelParameterError(f"Bouc-Wen integrator must be one of {INTEGRATORS}, got {integrator!r}")
-        if int(substeps) < 1:
-            raise ModelParameterError(f"Bouc-Wen substeps must be >= 1, got {substeps}")
+        if (isinstance(substeps, (bool, np.bool_)) or not isinstance(substeps, (int, np.integer))
+                or substeps < 1):
+            raise ModelParameterError(f"Bouc-Wen substeps must be an integer >= 1, got {substeps!r}")
         self.k_d, self.beta, self.gamma, self.n = k_d, beta, gamma, n
         self.integrator = integrator
         self.substeps = int(substeps)

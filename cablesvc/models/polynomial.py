@@ -38,8 +38,9 @@ class PolynomialHysteresis(CableModel):
                   "reversal_deadband": "motion back from the last extremum that counts as a reversal [m]"}
 
     def __init__(self, shape=(1, 1), degree: int = 3, **params):
-        if degree < 1 or degree % 2 == 0:
-            raise ModelParameterError(f"polynomial: degree must be odd and >= 1, got {degree}")
+        if (isinstance(degree, (bool, np.bool_)) or not isinstance(degree, (int, np.integer))
+                or degree < 1 or degree % 2 == 0):
+            raise ModelParameterError(f"polynomial: degree must be an odd integer >= 1, got {degree!r}")
         self.degree = int(degree)
         self.param_names = tuple(f"a{i}" for i in range(degree + 1)) + ("x_center", "reversal_deadband")
         self.defaults = {f"a{i}": 0.0 for i in range(degree + 1)} | {"x_center": 0.0,
