@@ -20,6 +20,7 @@ for SCHED_FIFO priority, the settings deploy/README.md recommends for production
 
 from __future__ import annotations
 
+import errno
 import gc
 import os
 import time
@@ -33,6 +34,7 @@ from cablesvc.config import load_robot
 from cablesvc.config.params import ModelParams, default_params, load_params
 from cablesvc.kernel import Predictor
 from cablesvc.kinematics import inverse_kinematics
+from cablesvc.models import ModelParameterError
 
 INPUTS = ("normal", "reversal", "slack", "large", "no_pose")
 #: where the kernel's memory is allocated: tracemalloc sees every thread, and the progress
@@ -42,6 +44,14 @@ _KERNEL_FILES = tuple(tracemalloc.Filter(True, os.path.join(os.path.dirname(mod.
 #: the machine baseline alternates with the kernel in blocks of this many ticks: close in
 #: time (same machine conditions) without evicting the kernel's caches every tick
 BLOCK = 500
+#: ticks run before the traced allocation stretch (at most; fewer for short runs)
+ALLOC_WARMUP = 200
+
+
+class BenchArgumentError(ModelParameterError):
+    """A bad argument of ``bench kernel`` (ticks, model): a one-line message naming the option.
+
+    A ModelParameterError (ValueError) so that the CLI's handler prints it as one line."""
 
 
 @dataclass
@@ -84,6 +94,9 @@ def set_scheduling(cpu: int | None, realtime: bool) -> str:
 
     parts = []
     if cpu is not None:
+        ncpu = os.cpu_count() or 1
+        if not 0 <= int(cpu) < ncpu:
+            raise OSError(errno.EINVAL, f"no CPU {cpu} on this machine (CPUs are 0..{ncpu - 1})")
         os.sched_setaffinity(0, {int(cpu)})
         parts.append(f"pinned to CPU {cpu}")
     if realtime:
@@ -115,11 +128,24 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
                      ticks: int = 100_000, inputs=INPUTS, rate: float = 1000.0, progress=None,
                      machine_baseline: bool = True, cpu: int | None = None,
                      realtime: bool = False) -> list[KernelBenchResult]:
+    """Run the benchmark; raises :class:`BenchArgumentError` for ticks < 1 or a model
+    without nominal parameters, OSError when the scheduling asked for is refused."""
+    if isinstance(ticks, bool) or not isinstance(ticks, (int, np.integer)) or ticks < 1:
+        raise BenchArgumentError(f"--ticks must be a positive integer, got {ticks!r}")
+    ticks = int(ticks)
     geom = load_robot(robot).geometry()
     pos = np.zeros(3)
     quat = np.array([0.0, 0.0, 0.0, 1.0])
     L = inverse_kinematics(geom, pos[None], quat[None]).length[0]
-    params: ModelParams = load_params(params_file) if params_file else default_params(geom.ea, L, model)
+    if params_file:
+        params: ModelParams = load_params(params_file)
+    else:
+        try:
+            params = default_params(geom.ea, L, model)
+        except ModelParameterError:
+            raise
+        except ValueError as e:
+            raise BenchArgumentError(f"--model {model}: {e}") from None
     x_pre = 60.0 / (geom.ea / L)              # 60 N pretension
     sched = set_scheduling(cpu, realtime)
     results = []
@@ -133,30 +159,32 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
             pred.tick(k / rate, ml_all[k], p_in, q_in)
         # allocation per tick, traced, over a separate stretch
         n_alloc = min(10_000, ticks)
+        n_pre = min(ALLOC_WARMUP, ticks)      # sized to the run: short runs have fewer inputs
         tracemalloc.start()
-        for k in range(200):
+        for k in range(n_pre):
             pred.tick((warm + k) / rate, ml_all[k], p_in, q_in)
         before = tracemalloc.take_snapshot().filter_traces(_KERNEL_FILES)
         for k in range(n_alloc):
-            pred.tick((warm + 200 + k) / rate, ml_all[k % ticks], p_in, q_in)
+            pred.tick((warm + n_pre + k) / rate, ml_all[k % ticks], p_in, q_in)
         after = tracemalloc.take_snapshot().filter_traces(_KERNEL_FILES)
         tracemalloc.stop()
         grown = sum(st.size_diff for st in after.compare_to(before, "filename"))
         alloc_per_tick = max(grown, 0) / n_alloc
         # timing
         durations = np.empty(ticks, dtype=np.int64)
-        t0 = (warm + 200 + n_alloc) / rate
+        t0 = (warm + n_pre + n_alloc) / rate
         clock = time.perf_counter_ns
         paired = machine_baseline and baseline is None and kind == "normal"
+        block = min(BLOCK, ticks)             # a run shorter than a block is one block
         calls = 0
         if paired:
             probe = np.empty(2000)
             for k in range(probe.size):
                 a = clock()
-                pred.tick(t0 + k / rate, ml_all[k], p_in, q_in)
+                pred.tick(t0 + k / rate, ml_all[k % ticks], p_in, q_in)
                 probe[k] = clock() - a
             calls = calibrate_calls(float(np.median(probe)) / 1e3)
-            base_d = np.empty(ticks - ticks % BLOCK, dtype=np.int64)
+            base_d = np.empty(ticks - ticks % block, dtype=np.int64)
             t0 += probe.size / rate
         gc.collect()
         gc.freeze()
@@ -167,8 +195,8 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
                 a = clock()
                 pred.tick(t0 + k / rate, ml, p_in, q_in)
                 durations[k] = clock() - a
-                if paired and k % BLOCK == BLOCK - 1:   # a block of baseline "ticks" after each block
-                    for j in range(k - BLOCK + 1, k + 1):
+                if paired and k % block == block - 1:   # a block of baseline "ticks" after each block
+                    for j in range(k - block + 1, k + 1):
                         a = clock()
                         _fixed_work(calls)
                         base_d[j] = clock() - a

@@ -15,12 +15,97 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 ROPES = {"7x19": "ROPE_7x19", "7x7": "ROPE_7x7"}
+
+
+def _positive_float(text: str) -> float:
+    """argparse type: a finite number > 0 (argparse names the option in its error)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return v
+
+
+def _nonnegative_float(text: str) -> float:
+    """argparse type: a finite number >= 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not math.isfinite(v) or v < 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+    return v
+
+
+def _positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+    return v
+
+
+def _finite_float(text: str) -> float:
+    """argparse type: a finite number."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return v
+
+
+def _fail(action: str, msg: str) -> int:
+    """One-line error on stderr; exit code 2 (a bad argument or input file)."""
+    print(f"cablesvc beam {action}: {msg}", file=sys.stderr)
+    return 2
+
+
+def _writable_file(path: str) -> str | None:
+    """Why ``path`` cannot be written as a file (None when it can)."""
+    p = Path(path)
+    if p.is_dir():
+        return "is a directory"
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        return f"folder {parent} does not exist"
+    if not os.access(parent, os.W_OK):
+        return f"folder {parent} is not writable"
+    if p.exists() and not os.access(p, os.W_OK):
+        return "is not writable"
+    return None
+
+
+def _dir_problem(path: str) -> str | None:
+    """Why ``path`` cannot be used as an output folder (created with its parents), or None."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        return "exists and is not a directory"
+    anc = p
+    while not anc.exists():
+        if anc.parent == anc:
+            break
+        anc = anc.parent
+    if anc.exists() and not anc.is_dir():
+        return f"{anc} is not a directory"
+    if not os.access(anc, os.W_OK):
+        return f"{anc} is not writable"
+    return None
 
 
 def _rope(name: str):
@@ -46,13 +131,13 @@ def _options(args: argparse.Namespace):
 
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rope", choices=sorted(ROPES), default="7x19", help="rope section (default 7x19, d = 10 mm)")
-    p.add_argument("--length", type=float, default=None, help="length in mm (default 75 for 7x19, 100 for 7x7)")
+    p.add_argument("--length", type=_positive_float, default=None, help="length in mm (default 75 for 7x19, 100 for 7x7)")
     for k, u in (("psi", "-"), ("delta", "-"), ("gamma", "N^(1-n) m^(2-n)"), ("beta", "N^(1-n) m^(2-n)"),
                  ("n", "-"), ("k3", "N m^3")):
-        p.add_argument(f"--{k}", type=float, default=None, help=f"{k} [{u}] (default: Table 4 / Table 6 of 000)")
-    p.add_argument("--elements", type=int, default=24, help="two-node elements (default 24)")
-    p.add_argument("--steps", type=int, default=240, help="load steps per period (default 240)")
-    p.add_argument("--cycles", type=int, default=2, help="periods simulated, last one reported (default 2)")
+        p.add_argument(f"--{k}", type=_finite_float, default=None, help=f"{k} [{u}] (default: Table 4 / Table 6 of 000)")
+    p.add_argument("--elements", type=_positive_int, default=24, help="two-node elements (default 24)")
+    p.add_argument("--steps", type=_positive_int, default=240, help="load steps per period (default 240)")
+    p.add_argument("--cycles", type=_positive_int, default=2, help="periods simulated, last one reported (default 2)")
 
 
 def _length(args) -> float:
@@ -62,6 +147,8 @@ def _length(args) -> float:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from cablesvc.beam.paper import hardening_ratio
     from cablesvc.beam.solver import stabilised_loop
+    if args.out and (why := _dir_problem(args.out)):
+        return _fail("simulate", f"--out {args.out}: {why}")
     A = np.array([1e-3 * float(a) for a in args.amplitude])
     sec, length, par = _rope(args.rope), _length(args), _params(args)
     lp = stabilised_loop(sec, length, par, A, options=_options(args))
@@ -114,14 +201,26 @@ def cmd_identify(args: argparse.Namespace) -> int:
                             steps_per_cycle=args.steps)
     else:
         if not args.data:
-            print("cablesvc beam identify: give --data FILE.csv or --synthetic", flush=True)
-            return 2
-        d = np.loadtxt(args.data, delimiter=",", skiprows=1)
+            return _fail("identify", "give --data FILE.csv or --synthetic")
+        try:
+            d = np.loadtxt(args.data, delimiter=",", skiprows=1, ndmin=2)
+        except (OSError, ValueError) as e:
+            why = e.strerror if isinstance(e, OSError) and e.strerror else str(e).splitlines()[0]
+            return _fail("identify", f"--data {args.data}: cannot read the CSV: {why}")
+        if d.ndim != 2 or d.shape[1] < 3:
+            return _fail("identify", f"--data {args.data}: need 3 columns t [s], x [m], f [N] after the header, "
+                                     f"got {d.shape[1] if d.ndim == 2 and d.size else 0}")
+        if not np.all(np.isfinite(d[:, :3])):
+            return _fail("identify", f"--data {args.data}: t, x, f must be finite numbers")
         t, x, f = d[:, 0], d[:, 1], d[:, 2]
         if x.size != args.steps + 1:
-            print(f"cablesvc beam identify: {args.data} has {x.size} samples; need --steps + 1 = {args.steps + 1} "
-                  f"(one period)")
-            return 2
+            return _fail("identify", f"--data {args.data}: has {x.size} samples; need --steps + 1 = "
+                                     f"{args.steps + 1} (one period)")
+        if not t[-1] > t[0]:
+            return _fail("identify", f"--data {args.data}: time t must increase over the period "
+                                     f"(t[0] = {t[0]:g} s, t[-1] = {t[-1]:g} s)")
+        if not np.max(np.abs(x)) > 0:
+            return _fail("identify", f"--data {args.data}: displacement x is zero everywhere")
         te = BeamTest(section=sec, length=length, amplitude=float(np.max(np.abs(x))), t=t, x=x, f=f,
                       omega=2 * np.pi / (t[-1] - t[0]))
     con = Console(stderr=args.json)
@@ -166,6 +265,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
 def cmd_paper(args: argparse.Namespace) -> int:
     from cablesvc.beam.paper import reproduce
+    if why := _dir_problem(args.out):
+        return _fail("paper", f"--out {args.out}: {why}")
     s = reproduce(args.out, options=_options(args))
     if args.json:
         print(json.dumps(s))
@@ -182,6 +283,10 @@ def cmd_paper(args: argparse.Namespace) -> int:
 
 def cmd_bridge(args: argparse.Namespace) -> int:
     from cablesvc.beam.bridge import fit_lumped, write_params
+    if args.write:
+        why = _writable_file(args.write)
+        if why:
+            return _fail("bridge", f"--write {args.write}: {why}")
     A = [1e-3 * float(a) for a in args.amplitude]
     fit = fit_lumped(_rope(args.rope), _length(args), _params(args), A, options=_options(args))
     print(fit.report())
@@ -199,7 +304,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
     s = sub.add_parser("simulate", help="stabilised force-displacement loops of the flexural test")
     _common(s)
-    s.add_argument("--amplitude", type=float, nargs="+", default=[5, 10, 15, 20], help="amplitudes in mm")
+    s.add_argument("--amplitude", type=_positive_float, nargs="+", default=[5, 10, 15, 20], help="amplitudes in mm")
     s.add_argument("--out", help="directory for loops.csv (and loops.png)")
     s.add_argument("--plot", action="store_true", help="also write loops.png")
     s.add_argument("--json", action="store_true")
@@ -209,10 +314,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     _common(i)
     i.add_argument("--data", help="CSV with header and columns t [s], x [m], f [N]: one stabilised period")
     i.add_argument("--synthetic", action="store_true", help="identify from the beam's own loop plus noise")
-    i.add_argument("--amplitude", type=float, default=10.0, help="synthetic test amplitude in mm (default 10)")
-    i.add_argument("--noise", type=float, default=0.01, help="synthetic noise std / RMS(f) (default 0.01)")
-    i.add_argument("--particles", type=int, default=10)
-    i.add_argument("--iterations", type=int, default=75)
+    i.add_argument("--amplitude", type=_positive_float, default=10.0, help="synthetic test amplitude in mm (default 10)")
+    i.add_argument("--noise", type=_nonnegative_float, default=0.01, help="synthetic noise std / RMS(f) (default 0.01)")
+    i.add_argument("--particles", type=_positive_int, default=10)
+    i.add_argument("--iterations", type=_positive_int, default=75)
     i.add_argument("--seed", type=int, default=0)
     i.add_argument("--no-polish", action="store_true", help="PSO only, as in the paper")
     i.add_argument("--json", action="store_true")
@@ -226,10 +331,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
     b = sub.add_parser("bridge", help="fit the lumped Bouc-Wen cable model to the beam; write a parameter file")
     _common(b)
-    b.add_argument("--amplitude", type=float, nargs="+", default=[5, 10, 15, 20], help="amplitudes in mm")
+    b.add_argument("--amplitude", type=_positive_float, nargs="+", default=[5, 10, 15, 20], help="amplitudes in mm")
     b.add_argument("--write", help="parameter file to write (TOML)")
     b.add_argument("--robot", default=None, help="robot name recorded in the file")
-    b.add_argument("--ropes", type=float, default=1.0, help="ropes in parallel per cable (scales the force)")
+    b.add_argument("--ropes", type=_positive_float, default=1.0, help="ropes in parallel per cable (scales the force)")
     b.set_defaults(func=cmd_bridge)
     p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
     return p

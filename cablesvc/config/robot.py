@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -94,8 +95,27 @@ StrictBool = Annotated[bool, Field(strict=True)]
 
 
 def _custom(kind: str, message: str) -> PydanticCustomError:
-    """A pydantic error whose message is ``message`` verbatim (braces escaped)."""
-    return PydanticCustomError(f"cablesvc_{kind}", message.replace("{", "{{").replace("}", "}}"))
+    """A pydantic error whose message is ``message`` verbatim.
+
+    Without a context pydantic does not format the template, so braces are left as they
+    are (escaping them would show up doubled in the message)."""
+    return PydanticCustomError(f"cablesvc_{kind}", message)
+
+
+#: characters allowed in a robot name: the name is one key chunk of the Zenoh key
+#: expressions the service publishes on (no '/', '*', '$', '?', '#', spaces)
+ROBOT_NAME_PATTERN = re.compile(r"[A-Za-z0-9_.-]+")
+
+
+def _check_robot_name(v: str) -> str:
+    """A robot name: non-empty letters, digits, '_', '.', '-' (usable as a Zenoh key chunk)."""
+    if v and not ROBOT_NAME_PATTERN.fullmatch(v):
+        raise _custom(
+            "robot_name",
+            f"must contain only letters, digits, '_', '.' and '-' (it is used as a Zenoh key "
+            f"chunk), got {_short(v)}",
+        )
+    return v
 
 
 def _check_vec3(v: list[float]) -> list[float]:
@@ -201,7 +221,7 @@ def _pulley_false_or_table(v: Any, handler: Any) -> Any:
 class CableOverride(_Strict):
     """``[[cables]]`` entry: per-cable overrides; list index = cable index."""
 
-    name: Optional[StrictStr] = None
+    name: Optional[Annotated[StrictStr, Field(min_length=1)]] = None
     diameter: Optional[PositiveFloat] = None
     material: Optional[StrictStr] = None
     ea: Optional[PositiveFloat] = None
@@ -221,7 +241,7 @@ class Robot(_Strict):
     """
 
     format: StrictInt
-    name: StrictStr = Field(min_length=1)
+    name: Annotated[StrictStr, Field(min_length=1), AfterValidator(_check_robot_name)]
     description: StrictStr = ""
     planar: StrictBool = False
     frame: FrameSection
@@ -525,16 +545,32 @@ def _semantic_problems(raw: dict[str, Any]) -> list[tuple[str, str]]:
 
     n_cables = m if m is not None else len(cables)
     any_default_used = False
-    names: dict[str, int] = {}
+    # resolved names (an entry without ``name`` is "cable<i>") must be unique
+    names: dict[str, tuple[int, bool]] = {}
     for i in range(n_cables):
         ov = cables[i] if i < len(cables) and isinstance(cables[i], dict) else {}
-        name = ov.get("name")
-        if isinstance(name, str):
-            if name in names:
+        given = ov.get("name")
+        if given is not None and not (isinstance(given, str) and given):
+            continue                      # wrong type or empty: reported by the schema
+        explicit = given is not None
+        name = given if explicit else f"cable{i}"
+        if name in names:
+            j, j_explicit = names[name]
+            if explicit:
+                other = f"cable {j}" if j_explicit else f"the default name of cable {j}"
+                probs.append((f"cables[{i}].name", f"duplicate cable name {name!r} (also {other})"))
+            else:                         # default names are unique: the earlier one was given
                 probs.append(
-                    (f"cables[{i}].name", f"duplicate cable name {name!r} (also cable {names[name]})")
+                    (
+                        f"cables[{j}].name",
+                        f"duplicate cable name {name!r} (also the default name of cable {i}, "
+                        f"which has no name)",
+                    )
                 )
-            names[name] = i
+        else:
+            names[name] = (i, explicit)
+    for i in range(n_cables):
+        ov = cables[i] if i < len(cables) and isinstance(cables[i], dict) else {}
         fmin = ov.get("force_min", dmin)
         fmax = ov.get("force_max", dmax)
         if ("force_min" in ov or "force_max" in ov) and _is_num(fmin) and _is_num(fmax) and fmin >= fmax:
@@ -552,9 +588,9 @@ def _semantic_problems(raw: dict[str, Any]) -> list[tuple[str, str]]:
                 )
             if planar:
                 axis = p.get("axis", (defaults or {}).get("axis", "vertical"))
-                _check_planar_axis(
-                    f"cables[{i}].pulley.axis" if "axis" in p else "pulley.axis", axis
-                )
+                # the [pulley] default is to blame only when there is a [pulley] section
+                from_default = "axis" not in p and defaults is not None
+                _check_planar_axis("pulley.axis" if from_default else f"cables[{i}].pulley.axis", axis)
                 c = p.get("center")
                 if _is_vec3(c) and c[2] != 0:
                     probs.append(
