@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import threading
 import time
@@ -40,14 +41,74 @@ def _config(args):
     return make_config(mode="peer", listen=(), connect=connect or [DEFAULT_LISTEN])
 
 
+class _CliError(Exception):
+    """A one-line error for the command line; ``status`` is the exit status."""
+
+    def __init__(self, msg: str, status: int):
+        super().__init__(msg)
+        self.status = status
+
+
+def _check_args(args) -> None:
+    """Bad values of the command line: :class:`_CliError` (exit status 2) naming the flag."""
+    from cablesvc.service.zenoh_io import keys
+
+    if args.robot is not None:
+        try:
+            keys(args.robot)
+        except ValueError as e:
+            raise _CliError(f"--robot: {e}", 2) from None
+    for flag, v in (("--wait", args.wait), ("--timeout", args.timeout)):
+        if v is not None and not (math.isfinite(v) and v >= 0):
+            raise _CliError(f"{flag}: expected seconds >= 0 (a finite number), got {v!r}", 2)
+    if args.count is not None and args.count < 1:
+        raise _CliError(f"--count: expected a number of messages >= 1, got {args.count!r}", 2)
+    for v in args.connect or ():
+        proto, _, addr = v.partition("/")
+        if not proto or not addr or v != v.strip():
+            raise _CliError(f"--connect: a Zenoh endpoint looks like tcp/127.0.0.1:7447, got {v!r}", 2)
+
+
+def _is_zenoh_error(e: BaseException) -> bool:
+    return type(e).__module__.startswith("zenoh") or type(e).__name__ == "ZError"
+
+
+def _listener(args, **kw):
+    """The Listener of ``args``; a Zenoh configuration or session that cannot be had is a
+    :class:`_CliError` (exit status 1) naming the file or the endpoints."""
+    from cablesvc.service.zenoh_io import DEFAULT_LISTEN, Listener
+
+    where = args.zenoh_config or f"connect {', '.join(args.connect or (DEFAULT_LISTEN,))}"
+    try:
+        config = _config(args)
+    except Exception as e:  # noqa: BLE001 - a missing or invalid JSON5 file, a bad endpoint: one line
+        if not (_is_zenoh_error(e) or isinstance(e, (ValueError, OSError))):
+            raise
+        raise _CliError(f"cannot use the Zenoh configuration ({where}): {str(e).split(' at /')[0]}", 1) from None
+    try:
+        return Listener(args.robot, config, **kw)
+    except Exception as e:  # noqa: BLE001
+        if not _is_zenoh_error(e):
+            raise
+        raise _CliError(f"cannot open the Zenoh session ({where}): {str(e).split(' at /')[0]}", 1) from None
+
+
 def cmd_listen(args) -> int:
     """Handler of ``cablesvc listen``. Exit status 0; 1 when --status/--alive got no answer
-    or --timeout passed without a message."""
-    from cablesvc.service.zenoh_io import Listener
+    or --timeout passed without a message, or the Zenoh session cannot be opened; 2 for a
+    bad argument."""
+    try:
+        _check_args(args)
+        return _cmd_listen(args)
+    except _CliError as e:
+        print(f"cablesvc listen: {e}", file=sys.stderr)
+        return e.status
 
+
+def _cmd_listen(args) -> int:
     out = sys.stdout
     if args.status or args.alive:
-        lis = Listener(args.robot, _config(args))
+        lis = _listener(args)
         try:
             if args.alive:
                 deadline = time.monotonic() + args.wait
@@ -77,9 +138,7 @@ def cmd_listen(args) -> int:
 
 
 def _listen_json(args, out) -> int:
-    from cablesvc.service.zenoh_io import Listener
-
-    lis = Listener(args.robot, _config(args))
+    lis = _listener(args)
     n_forces = 0
     last = time.monotonic()
     try:
@@ -119,8 +178,6 @@ def _listen_table(args) -> int:
     from rich.console import Console, Group
     from rich.live import Live
     from rich.table import Table
-
-    from cablesvc.service.zenoh_io import Listener
 
     latest: dict[str, tuple[dict, int]] = {}
     counts: dict[str, int] = {}
@@ -177,7 +234,7 @@ def _listen_table(args) -> int:
         return Group(*parts)
 
     con = Console()
-    lis = Listener(args.robot, _config(args), on_forces=on_forces, on_alarm=on_alarm)
+    lis = _listener(args, on_forces=on_forces, on_alarm=on_alarm)
     try:
         with Live(render(), console=con, refresh_per_second=8) as live:
             last_n = -1

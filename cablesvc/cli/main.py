@@ -43,6 +43,14 @@ def cmd_simulate(args) -> int:
     if not args.out:
         print("cablesvc simulate: --out is required (a .mcap or .csv path)", file=sys.stderr)
         return 2
+    out = Path(args.out)
+    parent = out.parent if str(out.parent) else Path(".")
+    if out.is_dir():
+        print(f"cablesvc simulate: --out {args.out} is a directory; give a .mcap or .csv file path", file=sys.stderr)
+        return 2
+    if not parent.is_dir():
+        print(f"cablesvc simulate: --out {args.out}: directory {parent} does not exist", file=sys.stderr)
+        return 2
     robot = load_robot(args.robot)
     effects = [effect_from_spec(s, robot.n_cables) for s in args.effect]
     base = load_params(args.truth_params) if args.truth_params else None
@@ -54,8 +62,12 @@ def cmd_simulate(args) -> int:
             kwargs[k] = json.loads(v)
         except json.JSONDecodeError:
             kwargs[k] = v
-    rec = simulate_recording(robot, args.scenario, Path(args.out), truth=truth, duration=args.duration,
-                             rate=args.rate, seed=args.seed, **kwargs)
+    try:
+        rec = simulate_recording(robot, args.scenario, out, truth=truth, duration=args.duration,
+                                 rate=args.rate, seed=args.seed, **kwargs)
+    except OSError as e:                    # a read-only directory, a full disk, ...: one line naming the file
+        print(f"cablesvc simulate: cannot write {e.filename or args.out}: {e.strerror or e}", file=sys.stderr)
+        return 1
     print(f"wrote {args.out}: {rec.n_ticks} ticks, {rec.n_cables} cables, "
           f"{rec.t[-1] - rec.t[0]:.1f} s, effects: {', '.join(e.describe() for e in effects) or 'none'}")
     return 0
@@ -94,13 +106,16 @@ def cmd_robots(args) -> int:
 # ---- bench -----------------------------------------------------------------------------
 
 def cmd_bench_kernel(args) -> int:
-    from cablesvc.bench.kernel import INPUTS, as_dicts, run_kernel_bench
+    from cablesvc.bench.kernel import INPUTS, BenchArgumentError, as_dicts, run_kernel_bench
 
     inputs = args.input or list(INPUTS)
     kw = {"machine_baseline": not args.no_baseline, "cpu": args.cpu, "realtime": args.realtime}
     if args.json:
         try:
             res = run_kernel_bench(args.robot, args.model, args.params, args.ticks, inputs, **kw)
+        except BenchArgumentError as e:           # a bad --ticks / --model: exit 2, like argparse
+            print(f"cablesvc bench kernel: {e}", file=sys.stderr)
+            return 2
         except OSError as e:
             print(f"cablesvc bench kernel: cannot set the scheduling asked for (--cpu/--realtime): {e}",
                   file=sys.stderr)
@@ -120,6 +135,9 @@ def cmd_bench_kernel(args) -> int:
             prog.update(task, completed=sum(done.values()), description=f"{kind}")
         try:
             res = run_kernel_bench(args.robot, args.model, args.params, args.ticks, inputs, progress=cb, **kw)
+        except BenchArgumentError as e:           # a bad --ticks / --model: exit 2, like argparse
+            print(f"cablesvc bench kernel: {e}", file=sys.stderr)
+            return 2
         except OSError as e:
             print(f"cablesvc bench kernel: cannot set the scheduling asked for (--cpu/--realtime): {e}",
                   file=sys.stderr)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import signal
 import sys
@@ -117,8 +118,14 @@ def _load_config(path: str | None) -> dict[str, Any]:
             return tomllib.load(f)
     except FileNotFoundError:
         raise SystemExit(f"cablesvc run: config file {path} not found")
+    except IsADirectoryError:
+        raise SystemExit(f"cablesvc run: config file {path} is a directory, not a TOML file")
+    except UnicodeDecodeError as e:
+        raise SystemExit(f"cablesvc run: {path}: not valid TOML: not UTF-8 text ({e.reason} at byte {e.start})")
     except tomllib.TOMLDecodeError as e:
         raise SystemExit(f"cablesvc run: {path}: not valid TOML: {e}")
+    except OSError as e:
+        raise SystemExit(f"cablesvc run: cannot read config file {path}: {e.strerror or e}")
 
 
 def nominal_params(geom):
@@ -143,7 +150,7 @@ def _sim_controller(robot, src: dict[str, Any], *, scenario: str | None, rate: f
     fd = src.get("fd", True) is not False          # 1 kHz needs the FD layout (docs/sources.md)
     src = {**src, "fd": fd}
     controller = CanController(robot, bus, dbc=src.get("dbc"), scenario=scenario or "trajectory",
-                               rate=rate or 1000.0, seed=seed or 0, duration=10.0, fd=fd)
+                               rate=1000.0 if rate is None else rate, seed=seed or 0, duration=10.0, fd=fd)
     # the controller thread shares the interpreter: allow it to be held off by the GIL mid-tick
     return controller, {"kind": "can", "interface": bus["interface"], "channel": channel, "deadline_s": 0.05,
                         **{k: v for k, v in src.items() if k in ("dbc", "deadline_s", "fd")}}
@@ -215,18 +222,106 @@ def is_fleet_config(cfg: dict[str, Any]) -> bool:
 
 def _endpoints_of(value: Any, where: str) -> tuple[str, ...]:
     vals = [value] if isinstance(value, str) else value
-    if not isinstance(vals, list) or not all(isinstance(v, str) for v in vals):
+    if not isinstance(vals, list) or not all(isinstance(v, str) and _is_endpoint(v) for v in vals):
         raise FleetConfigError(f"{where}: expected a list of Zenoh endpoints like [\"tcp/127.0.0.1:7447\"], "
                                f"got {value!r}")
     return tuple(vals)
 
 
+def _is_endpoint(v: str) -> bool:
+    """A Zenoh endpoint has the form ``proto/address`` (``tcp/127.0.0.1:7447``)."""
+    proto, _, addr = v.partition("/")
+    return bool(proto) and bool(addr) and v == v.strip()
+
+
+def _seconds_ok(v: Any, *, zero: bool = False) -> bool:
+    """A number of seconds: finite and > 0 (>= 0 with ``zero``); bools are not numbers here."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        return False
+    return v >= 0 if zero else v > 0
+
+
+def check_flags(args) -> str | None:
+    """The command-line values that no config can fix: a one-line message for the first bad
+    one (exit status 2), or None."""
+    for flag, v, zero in (("--snapshot-interval", args.snapshot_interval, False), ("--seconds", args.seconds, False),
+                          ("--rate", args.rate, False), ("--wait-subscriber", args.wait_subscriber, True)):
+        if v is not None and not _seconds_ok(v, zero=zero):
+            what = "a tick rate in Hz > 0" if flag == "--rate" else f"seconds {'>=' if zero else '>'} 0"
+            return f"{flag}: expected {what} (a finite number), got {v!r}"
+    for flag, vals in (("--listen", args.listen), ("--connect", args.connect)):
+        for v in vals or ():
+            if not _is_endpoint(v):
+                return f"{flag}: a Zenoh endpoint looks like tcp/127.0.0.1:7447, got {v!r}"
+    return None
+
+
+SINGLE_SOURCE_KINDS = ("sim", "can", "modbus", "replay")
+# the [source] table of a single-robot config with kind = "sim" (the embedded simulated controller)
+SINGLE_SIM_KEYS = FLEET_SIM_KEYS + ("interface", "channel", "deadline_s")
+
+
+def _alarm_error(ex: Exception) -> str:
+    """pydantic's message on one line: ``foo: Extra inputs are not permitted; ...``."""
+    errors = getattr(ex, "errors", None)
+    if callable(errors):
+        try:
+            return "; ".join(f"{'.'.join(str(x) for x in err.get('loc', ())) or '(table)'}: {err.get('msg')}"
+                             for err in errors())
+        except Exception:  # noqa: BLE001 - fall back to the first line
+            pass
+    return str(ex).splitlines()[0] if str(ex) else type(ex).__name__
+
+
+def check_single_config(cfg: dict[str, Any], file: str) -> None:
+    """Check a single-robot config (no [[robots]]) the way :func:`plan_fleet` checks a fleet
+    entry: unknown keys and values of the wrong type are a :class:`FleetConfigError` naming
+    the file and the key (``daemon.toml: source: expected a table ...``)."""
+    allowed = FLEET_SHARED_KEYS + FLEET_ROBOT_KEYS
+    for k in cfg:
+        if k not in allowed:
+            raise FleetConfigError(f"{file}: {k}: unknown key; a daemon config has {', '.join(allowed)} "
+                                   "(or [[robots]] tables for a fleet)")
+    for k, what in (("robot", "a robot name in robots/ or a path to a robot .toml"),
+                    ("params", "a path to a parameter file from `cablesvc identify`"),
+                    ("record", "a path to an .mcap file"), ("snapshot", "a path to a state file"),
+                    ("zenoh_config", "a path to a Zenoh JSON5 file")):
+        if k in cfg and (not isinstance(cfg[k], str) or not cfg[k]):
+            raise FleetConfigError(f"{file}: {k}: expected {what}, got {cfg[k]!r}")
+    if "snapshot_interval" in cfg and not _seconds_ok(cfg["snapshot_interval"]):
+        raise FleetConfigError(f"{file}: snapshot_interval: expected seconds > 0 (a finite number), "
+                               f"got {cfg['snapshot_interval']!r}")
+    if "source" in cfg:
+        src = cfg["source"]
+        if not isinstance(src, dict):
+            raise FleetConfigError(f"{file}: source: expected a table ([source]) with a kind, got {src!r}")
+        kind = src.get("kind", "sim")
+        if kind not in SINGLE_SOURCE_KINDS:
+            raise FleetConfigError(f"{file}: source.kind: expected one of {', '.join(SINGLE_SOURCE_KINDS)}, "
+                                   f"got {kind!r}")
+        if kind == "sim":
+            bad = sorted(set(src) - set(SINGLE_SIM_KEYS))
+            if bad:
+                raise FleetConfigError(f"{file}: source.{bad[0]}: unknown for kind \"sim\" (the embedded simulated "
+                                       f"controller); it takes {', '.join(SINGLE_SIM_KEYS)}")
+    if "alarms" in cfg:
+        from cablesvc.alarms import AlarmConfig
+        if not isinstance(cfg["alarms"], dict):
+            raise FleetConfigError(f"{file}: alarms: expected a table ([alarms]), got {cfg['alarms']!r}")
+        try:
+            AlarmConfig.model_validate(cfg["alarms"])
+        except Exception as ex:  # noqa: BLE001 - pydantic's message names the field
+            raise FleetConfigError(f"{file}: alarms.{_alarm_error(ex)}") from None
+
+
 def fleet_shared(args, cfg: dict[str, Any], file: str) -> dict[str, Any]:
     """The shared Zenoh settings of a fleet config, command-line flags first:
     ``zenoh_config_file``, ``listen``, ``connect`` (None: not given) and ``encoding``."""
-    listen = args.listen or (None if cfg.get("listen") is None else _endpoints_of(cfg["listen"], f"{file}: listen"))
-    connect = args.connect or (None if cfg.get("connect") is None
-                               else _endpoints_of(cfg["connect"], f"{file}: connect"))
+    # the file's values are checked even where a flag overrides them: a bad file is a bad file
+    cfg_listen = None if cfg.get("listen") is None else _endpoints_of(cfg["listen"], f"{file}: listen")
+    cfg_connect = None if cfg.get("connect") is None else _endpoints_of(cfg["connect"], f"{file}: connect")
+    listen = args.listen or cfg_listen
+    connect = args.connect or cfg_connect
     zc = args.zenoh_config or cfg.get("zenoh_config")
     if zc is not None and not isinstance(zc, str):
         raise FleetConfigError(f"{file}: zenoh_config: expected a path to a Zenoh JSON5 file, got {zc!r}")
@@ -320,8 +415,8 @@ def plan_fleet(args, cfg: dict[str, Any], file: str) -> tuple[dict[str, Any], li
                 alarm_cfg = AlarmConfig.model_validate(e["alarms"])
             except Exception as ex:  # noqa: BLE001 - pydantic's message names the field
                 raise FleetConfigError(f"{where}.alarms: {ex}") from None
-        interval = args.snapshot_interval or e.get("snapshot_interval", 5.0)
-        if isinstance(interval, bool) or not isinstance(interval, (int, float)) or not interval > 0:
+        interval = e.get("snapshot_interval", 5.0) if args.snapshot_interval is None else args.snapshot_interval
+        if not _seconds_ok(interval):
             raise FleetConfigError(f"{where}.snapshot_interval: expected seconds > 0, got {interval!r}")
         snapshot = None
         if not args.no_snapshot:
@@ -387,9 +482,20 @@ def _cmd_run(args) -> int:
 
     logging.basicConfig(level=getattr(logging, str(args.log_level).upper(), logging.INFO),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    bad = check_flags(args)
+    if bad:
+        print(f"cablesvc run: {bad}", file=sys.stderr)
+        return 2
     cfg = _load_config(args.config)
     if is_fleet_config(cfg):
         return _run_fleet(args, cfg, str(args.config))
+    file = str(args.config)
+    try:
+        check_single_config(cfg, file)
+        shared = fleet_shared(args, cfg, file)
+    except FleetConfigError as e:
+        print(f"cablesvc run: {e}", file=sys.stderr)
+        return 1
     robot = load_robot(args.robot or cfg.get("robot") or "ipanema3")
     geom = robot.geometry()
     params_file = args.params or cfg.get("params")
@@ -401,10 +507,22 @@ def _cmd_run(args) -> int:
     src = source_config(args, cfg, robot.name)
     controller = None
     if src["kind"] == "sim":
-        controller, src = _sim_controller(robot, src, scenario=args.scenario, rate=args.rate, seed=args.seed,
-                                          channel=src.get("channel") or f"cablesvc-sim-{os.getpid()}")
-    elif args.scenario or args.rate:
-        print("cablesvc run: --scenario and --rate apply to --source sim only", file=sys.stderr)
+        from cablesvc.sources import SourceConfigError
+        sim = {k: src.pop(k) for k in ("scenario", "rate", "seed") if k in src}
+        scenario = args.scenario if args.scenario is not None else sim.get("scenario")
+        rate = args.rate if args.rate is not None else sim.get("rate")
+        seed = args.seed if args.seed is not None else sim.get("seed")
+        try:
+            controller, src = _sim_controller(robot, src, scenario=scenario, rate=rate, seed=seed,
+                                              channel=src.get("channel") or f"cablesvc-sim-{os.getpid()}")
+        except (SourceConfigError, ValueError, TypeError, KeyError) as e:
+            # no DBC for this robot, an unknown scenario, a bad rate in the config: one line
+            msg = e.args[0] if isinstance(e, KeyError) and e.args else e
+            print(f"cablesvc run: cannot start the simulated controller (source sim) for robot {robot.name!r}: "
+                  f"{msg}", file=sys.stderr)
+            return 1
+    elif args.scenario is not None or args.rate is not None or args.seed is not None:
+        print("cablesvc run: --scenario, --rate and --seed apply to --source sim only", file=sys.stderr)
         return 2
     snapshot = None
     if not args.no_snapshot:
@@ -412,16 +530,17 @@ def _cmd_run(args) -> int:
     alarm_cfg = None
     if "alarms" in cfg:
         from cablesvc.alarms import AlarmConfig
-        alarm_cfg = AlarmConfig.model_validate(cfg["alarms"])
+        alarm_cfg = AlarmConfig.model_validate(cfg["alarms"])       # checked above
+    interval = cfg.get("snapshot_interval", 5.0) if args.snapshot_interval is None else args.snapshot_interval
     opts = DaemonOptions(
         robot=robot, params=params, source=src,
-        zenoh_config_file=args.zenoh_config or cfg.get("zenoh_config"),
-        listen=tuple(args.listen or cfg.get("listen")) if (args.listen or cfg.get("listen")) else None,
-        connect=tuple(args.connect or cfg.get("connect")) if (args.connect or cfg.get("connect")) else None,
-        encoding=args.encoding or cfg.get("encoding", "json"),
+        zenoh_config_file=shared["zenoh_config_file"],
+        listen=shared["listen"],
+        connect=shared["connect"],
+        encoding=shared["encoding"],
         record=Path(args.record or cfg["record"]) if (args.record or cfg.get("record")) else None,
         snapshot=snapshot,
-        snapshot_interval_s=args.snapshot_interval or cfg.get("snapshot_interval", 5.0),
+        snapshot_interval_s=float(interval),
         alarm_config=alarm_cfg,
         wait_subscriber_s=args.wait_subscriber,
     )
@@ -451,7 +570,17 @@ def _cmd_run(args) -> int:
              opts.zenoh_config_file or f"peer on {', '.join(opts.listen or ('tcp/127.0.0.1:7447',))}")
     if daemon.restored_from:
         log.info("hysteresis state restored from %s", daemon.restored_from)
-    worker = threading.Thread(target=daemon.run, args=(stop,), name="cablesvc-loop", daemon=True)
+    errors: list[str] = []
+
+    def loop():
+        # an exception ends the loop: logged, and the exit status says so (as for a fleet)
+        try:
+            daemon.run(stop)
+        except BaseException as e:  # noqa: BLE001
+            errors.append(f"{type(e).__name__}: {e}")
+            log.exception("the loop stopped: %s", e)
+
+    worker = threading.Thread(target=loop, name="cablesvc-loop", daemon=True)
     if controller is not None:
         controller.start()
     worker.start()
@@ -474,6 +603,9 @@ def _cmd_run(args) -> int:
         st = daemon.status()
         log.info("stopped in %.2f s after %d ticks; input %s; latency %s", time.monotonic() - t0, st["ticks"],
                  json.dumps(st["input"]), json.dumps(st["latency_us"]))
+    if errors:
+        log.error("robot %s: its loop ended with an error: %s", robot.name, errors[0])
+        return 1
     return 0
 
 
