@@ -16,12 +16,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from cablesvc.cli.paths import dir_problem, file_problem
 
 ROPES = {"7x19": "ROPE_7x19", "7x7": "ROPE_7x7"}
 
@@ -76,38 +77,6 @@ def _fail(action: str, msg: str) -> int:
     return 2
 
 
-def _writable_file(path: str) -> str | None:
-    """Why ``path`` cannot be written as a file (None when it can)."""
-    p = Path(path)
-    if p.is_dir():
-        return "is a directory"
-    parent = p.parent if str(p.parent) else Path(".")
-    if not parent.is_dir():
-        return f"folder {parent} does not exist"
-    if not os.access(parent, os.W_OK):
-        return f"folder {parent} is not writable"
-    if p.exists() and not os.access(p, os.W_OK):
-        return "is not writable"
-    return None
-
-
-def _dir_problem(path: str) -> str | None:
-    """Why ``path`` cannot be used as an output folder (created with its parents), or None."""
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        return "exists and is not a directory"
-    anc = p
-    while not anc.exists():
-        if anc.parent == anc:
-            break
-        anc = anc.parent
-    if anc.exists() and not anc.is_dir():
-        return f"{anc} is not a directory"
-    if not os.access(anc, os.W_OK):
-        return f"{anc} is not writable"
-    return None
-
-
 def _rope(name: str):
     from cablesvc.beam import solver
     return getattr(solver, ROPES[name])
@@ -147,7 +116,7 @@ def _length(args) -> float:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from cablesvc.beam.paper import hardening_ratio
     from cablesvc.beam.solver import stabilised_loop
-    if args.out and (why := _dir_problem(args.out)):
+    if args.out and (why := dir_problem(args.out)):
         return _fail("simulate", f"--out {args.out}: {why}")
     A = np.array([1e-3 * float(a) for a in args.amplitude])
     sec, length, par = _rope(args.rope), _length(args), _params(args)
@@ -265,7 +234,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
 def cmd_paper(args: argparse.Namespace) -> int:
     from cablesvc.beam.paper import reproduce
-    if why := _dir_problem(args.out):
+    if why := dir_problem(args.out):
         return _fail("paper", f"--out {args.out}: {why}")
     s = reproduce(args.out, options=_options(args))
     if args.json:
@@ -284,7 +253,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
 def cmd_bridge(args: argparse.Namespace) -> int:
     from cablesvc.beam.bridge import fit_lumped, write_params
     if args.write:
-        why = _writable_file(args.write)
+        why = file_problem(args.write)
         if why:
             return _fail("bridge", f"--write {args.write}: {why}")
     A = [1e-3 * float(a) for a in args.amplitude]

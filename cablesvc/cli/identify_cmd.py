@@ -11,10 +11,11 @@ cable index out of range, robot/recording mismatch) are one clear line and exit 
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 from typing import Any, Sequence
+
+from cablesvc.cli.paths import dir_problem, file_problem
 
 __all__ = ["add_parser", "cmd_identify", "run_identify", "build_parser"]
 
@@ -46,34 +47,6 @@ def _parse_cables(text: str | None) -> list[int] | None:
         return [int(c) for c in text.split(",") if c.strip() != ""]
     except ValueError:
         raise ValueError(f"--cables: expected comma-separated cable indices like 0,1,2, got {text!r}") from None
-
-
-def _file_problem(path: str) -> str | None:
-    """Why ``path`` cannot be written as a file (its folder must exist), or None."""
-    p = Path(path)
-    if p.is_dir():
-        return "is a directory"
-    parent = p.parent
-    if not parent.is_dir():
-        return f"folder {parent} does not exist"
-    if not os.access(parent, os.W_OK) or (p.exists() and not os.access(p, os.W_OK)):
-        return "is not writable"
-    return None
-
-
-def _dir_problem(path: str) -> str | None:
-    """Why ``path`` cannot be used as an output folder (created with its parents), or None."""
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        return "exists and is not a directory"
-    anc = p
-    while not anc.exists() and anc.parent != anc:
-        anc = anc.parent
-    if not anc.is_dir():
-        return f"{anc} is not a directory"
-    if not os.access(anc, os.W_OK):
-        return f"{anc} is not writable"
-    return None
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
@@ -114,9 +87,9 @@ def cmd_identify(args: argparse.Namespace) -> int:
     if args.out and Path(args.out).suffix.lower() != ".toml":
         return _fail(f"--out {args.out}: the parameter file must end in .toml")
     # output paths are checked before the (long) fit, not after it
-    if args.out and (why := _file_problem(args.out)):
+    if args.out and (why := file_problem(args.out)):
         return _fail(f"--out {args.out}: cannot write the parameter file: {why}")
-    if args.report and (why := _dir_problem(args.report)):
+    if args.report and (why := dir_problem(args.report)):
         return _fail(f"--report {args.report}: cannot write the report folder: {why}")
     try:
         with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
