@@ -3,7 +3,6 @@ tick), state alarms, input watch, the manager with a real kernel, snapshots and 
 
 from __future__ import annotations
 
-import io
 import json
 import time
 from dataclasses import replace
@@ -29,6 +28,7 @@ from cablesvc.config.params import default_params
 from cablesvc.kernel import Predictor
 from cablesvc.kinematics import inverse_kinematics
 from cablesvc.recording.format import ALARM_JSON_SCHEMA
+from cablesvc.service.daemon import read_snapshot, write_snapshot
 from cablesvc.service.messages import ALARM_SCHEMA, check_schema
 
 RATE = 1000.0
@@ -341,29 +341,10 @@ def test_manager_with_kernel_drift_active_set_counters_and_snapshot(planar, tmp_
     active = {(e.code, e.cable) for e in mgr.active()}
     assert ("drift", 2) in active
     assert mgr.counters["drift"] == 1
-    # snapshot through np.savez (what the daemon does), restore into a fresh manager
-    state = mgr.state_dict()
-    flat = {}
-
-    def flatten(prefix, d):
-        for k, v in d.items():
-            if isinstance(v, dict):
-                flatten(f"{prefix}{k}/", v)
-            else:
-                flat[f"{prefix}{k}"] = np.asarray(v)
-    flatten("", state)
-    buf = io.BytesIO()
-    np.savez(buf, **flat)
-    buf.seek(0)
-    with np.load(buf, allow_pickle=False) as z:
-        loaded: dict = {}
-        for key in z.files:
-            node = loaded
-            *parents, leaf = key.split("/")
-            for p in parents:
-                node = node.setdefault(p, {})
-            v = z[key]
-            node[leaf] = v[()] if v.ndim == 0 else v
+    # snapshot through the daemon's own write and read (np.savez), restore into a fresh manager
+    path = tmp_path / "state.npz"
+    write_snapshot(path, {}, {}, mgr.state_dict())
+    loaded = read_snapshot(path)[2]
     mgr2 = AlarmManager(geom, params, cfg)
     mgr2.load_state_dict(loaded)
     assert {(e.code, e.cable) for e in mgr2.active()} == active and mgr2.counters == mgr.counters

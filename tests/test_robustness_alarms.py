@@ -6,8 +6,9 @@ which events happen within generous windows, not on exact timings."""
 
 from __future__ import annotations
 
-import io
 import json
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from cablesvc.config import load_robot
 from cablesvc.config.params import default_params
 from cablesvc.kernel import Predictor
 from cablesvc.kinematics import inverse_kinematics
+from cablesvc.service.daemon import read_snapshot, write_snapshot
 
 RATE = 100.0
 Q0 = np.array([0.0, 0.0, 0.0, 1.0])
@@ -51,29 +53,11 @@ def keys(events, code, action=None):
 
 
 def savez_round_trip(state: dict) -> dict:
-    """What the daemon's snapshot does: nested dict -> np.savez -> nested dict."""
-    flat = {}
-
-    def flatten(prefix, d):
-        for k, v in d.items():
-            if isinstance(v, dict):
-                flatten(f"{prefix}{k}/", v)
-            else:
-                flat[f"{prefix}{k}"] = np.asarray(v)
-    flatten("", state)
-    buf = io.BytesIO()
-    np.savez(buf, **flat)
-    buf.seek(0)
-    loaded: dict = {}
-    with np.load(buf, allow_pickle=False) as z:
-        for key in z.files:
-            node = loaded
-            *parents, leaf = key.split("/")
-            for p in parents:
-                node = node.setdefault(p, {})
-            v = z[key]
-            node[leaf] = v[()] if v.ndim == 0 else v
-    return loaded
+    """What the daemon's snapshot does with the alarm state: its own write and read."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "state.npz"
+        write_snapshot(path, {}, {}, state)
+        return read_snapshot(path)[2]
 
 
 def snapshot_codes(mgr) -> set:
