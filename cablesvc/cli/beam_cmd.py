@@ -27,48 +27,26 @@ from cablesvc.cli.paths import dir_problem, file_problem
 ROPES = {"7x19": "ROPE_7x19", "7x7": "ROPE_7x7"}
 
 
-def _positive_float(text: str) -> float:
-    """argparse type: a finite number > 0 (argparse names the option in its error)."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
-    return v
+def _arg_type(convert, bound: str = "", ok=lambda v: True):
+    """An argparse type: ``convert(text)``, finite and ``ok``; ``bound`` words the range in
+    the error (argparse names the option)."""
+    noun, must = ("an integer", "an integer") if convert is int else ("a number", "a finite number")
+
+    def parse(text: str):
+        try:
+            v = convert(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {noun}{bound}, got {text!r}") from None
+        if not (math.isfinite(v) and ok(v)):
+            raise argparse.ArgumentTypeError(f"must be {must}{bound}, got {text!r}")
+        return v
+    return parse
 
 
-def _nonnegative_float(text: str) -> float:
-    """argparse type: a finite number >= 0."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-    if not math.isfinite(v) or v < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
-    return v
-
-
-def _positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
-    return v
-
-
-def _finite_float(text: str) -> float:
-    """argparse type: a finite number."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
-    return v
+_positive_float = _arg_type(float, " > 0", lambda v: v > 0)
+_nonnegative_float = _arg_type(float, " >= 0", lambda v: v >= 0)
+_positive_int = _arg_type(int, " >= 1", lambda v: v >= 1)
+_finite_float = _arg_type(float)
 
 
 def _fail(action: str, msg: str) -> int:
