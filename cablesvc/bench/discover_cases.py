@@ -1,0 +1,379 @@
+"""Cases of the realistic discovery bench: an imperfect, identified baseline and a recording
+from another simulator (:mod:`cablesvc.bench.truth`).
+
+Interface (used by ``cablesvc bench discover`` and by whoever develops discovery)::
+
+    from cablesvc.bench.discover_cases import make_realistic_case, case_plan, iter_cases
+    case = make_realistic_case("single", ["creep"], seed=11)          # one case
+    d = discover(case.recording, "ipanema3", case.baseline)           # what the bench does
+    case.truth   # answer key: {"kind", "effects": [{"name", "cables", ...}], "cables", "ool"}
+    for case in iter_cases(cases=7, seed=123): ...                    # a whole plan
+
+:class:`RealisticCase` fields: ``calib`` the calibration recording and ``recording`` the
+case's trajectory recording (:class:`~cablesvc.recording.Recording`, no ``truth``
+metadata: discovery sees only what a user has), ``baseline`` the
+:class:`~cablesvc.config.params.ModelParams` identified from ``calib`` by
+:func:`cablesvc.identify.cable.identify_cable` with the defaults of
+``cablesvc identify --model amplitude`` (the function the CLI calls), ``truth`` the answer
+key (effect names and cables; ``kind`` in ``single``, ``pair``, ``control``, ``ool``),
+plus the robot, magnitudes, effect RMS, equilibrium figures and timings.
+
+How a case is made:
+
+1. **A robot** of the fleet (:func:`calibrated_robot`, cached per process): a draw of the
+   truth cable law (:func:`cablesvc.bench.truth.draw_variant`: non-polynomial backbone,
+   Prandtl-Ishlinskii + Maxwell hysteresis, stiffness +-10 % per cable), calibrated once
+   as in 002 Sec 4: platform clamped at home, ``hold-sine`` with each winch in turn
+   (``mode="sequential"``), six amplitude levels 0.1-1.5 mm at 60 N pretension, 0.5 Hz,
+   3 cycles, 100 Hz, 0.1 N noise, no concealed effect; then the amplitude model is
+   identified from that recording. Several cases share a robot (``fleet`` robots per
+   run, cases assigned in turn), as a user calibrates a robot once and records many runs.
+2. **A trajectory** (``trajectory`` scenario, 30 s at 100 Hz; path ``ptp`` or ``sines``
+   drawn per case; tensions 40-380 N, far from the 60 N calibration point, with moves of
+   centimetres instead of millimetre sines). The winches hold the commanded motor
+   lengths; the platform settles to static equilibrium with the truth forces
+   (:func:`cablesvc.bench.truth.equilibrium_run`); the recorded pose is the balanced one.
+3. **Effects**: the library's (twin) effects and the out-of-library ones
+   (:data:`cablesvc.bench.truth.OOL_EFFECTS`) on random cables, each scaled so that its
+   RMS on its weakest cable, measured against the same robot and trajectory without the
+   effect (balanced too), is a log-uniform draw in 3-10 x the 0.1 N noise.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Iterator, Optional
+
+import numpy as np
+
+from cablesvc.bench.truth import (
+    OOL_EFFECTS,
+    CableVariant,
+    EquilibriumRun,
+    OolEffect,
+    draw_variant,
+    equilibrium_run,
+    wrench_rows,
+)
+from cablesvc.config import Robot, load_robot
+from cablesvc.config.params import ModelParams, default_params
+from cablesvc.jsonable import jsonable
+from cablesvc.kinematics import inverse_kinematics, platform_wrench, structure_matrix
+from cablesvc.recording import Recording
+from cablesvc.simulate import EFFECTS
+from cablesvc.simulate.physics import Effect, ElasticCurve
+from cablesvc.simulate.scenarios import ScenarioContext, hold_sine, trajectory
+from cablesvc.simulate.twin import Ambient
+
+__all__ = ["NOISE", "ROBOT", "RATE", "DURATION", "CAL_AMPLITUDES", "RATIO", "KINDS", "SimRobot",
+           "RealisticCase", "CaseSpec", "calibrated_robot", "make_realistic_case", "case_plan", "iter_cases",
+           "strip_truth", "wrench_rms"]
+
+NOISE = 0.1                 # N
+ROBOT = "ipanema3"
+RATE = 100.0                # Hz
+DURATION = 30.0             # s
+CAL_AMPLITUDES = (1e-4, 2.5e-4, 5e-4, 7.5e-4, 1e-3, 1.5e-3)   # m, six levels of 002 Sec 4
+RATIO = (3.0, 10.0)         # effect RMS / noise on the weakest affected cable
+TENSION = (40.0, 380.0)     # N, trajectory tension limits
+KINDS = ("single", "pair", "control", "ool")
+SIGNED = {"offset_gain", "temperature"}
+POWER = {"sag": 2.0}
+NONLINEAR = {"sag", "deadtime", "mount"}
+GENERATOR = "cablesvc.bench.truth"
+
+
+def strip_truth(rec: Recording) -> Recording:
+    """A shallow copy of ``rec`` without the ``truth`` metadata (the answer key)."""
+    r = copy.copy(rec)
+    r.metadata = {k: v for k, v in rec.metadata.items() if k != "truth"}
+    return r
+
+
+def wrench_rms(geom: Any, position: np.ndarray, orientation: np.ndarray, force: np.ndarray) -> float:
+    """RMS over ticks of |force rows of A^T f + w| [N] (002 eq 2, quasi-static) with the
+    robot file's geometry at the recorded pose."""
+    ik = inverse_kinematics(geom, position, orientation)
+    AT = structure_matrix(ik.unit, ik.anchor_world)
+    R = np.einsum("nim,nm->ni", AT, force) + platform_wrench(geom, ik.rotation)
+    rows = [r for r in wrench_rows(geom) if r < 3]
+    return float(np.sqrt(np.mean(np.sum(R[:, rows] ** 2, axis=1))))
+
+
+# --------------------------------------------------------------------------------------
+# robots of the fleet
+# --------------------------------------------------------------------------------------
+
+
+@dataclass
+class SimRobot:
+    """One simulated robot: ``variant`` its true cable law, ``calib`` its calibration
+    recording (truth stripped), ``baseline`` the amplitude model identified from it,
+    ``calib_rmse`` the identification's per-cable RMSE [N], ``seconds`` (simulate, identify)."""
+
+    index: int
+    fleet_seed: int
+    robot: Robot
+    variant: CableVariant
+    home_length: np.ndarray
+    calib: Recording
+    baseline: ModelParams
+    calib_rmse: np.ndarray
+    seconds: dict[str, float]
+
+
+_FLEET: dict[tuple[int, int], SimRobot] = {}
+
+
+def _nominal_elastic(geom: Any, home: np.ndarray) -> ElasticCurve:
+    """The controller's model: the nominal amplitude model's elastic curve (as the twin)."""
+    return ElasticCurve(default_params(geom.ea, home, "amplitude"), geom.n_cables)
+
+
+def calibrated_robot(index: int, fleet_seed: int = 0) -> SimRobot:
+    """Robot ``index`` of fleet ``fleet_seed``: its cable law, calibration recording and
+    identified baseline (computed once per process, then cached)."""
+    key = (int(index), int(fleet_seed))
+    if key in _FLEET:
+        return _FLEET[key]
+    from cablesvc.identify.cable import identify_cable
+    t0 = time.perf_counter()
+    rob = load_robot(ROBOT)
+    geom = rob.geometry()
+    home = inverse_kinematics(geom, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])).length[0]
+    k = np.asarray(geom.ea, float) / home
+    variant = draw_variant(k, np.random.default_rng([fleet_seed, index, 41]))
+    seed = int(np.random.default_rng([fleet_seed, index, 42]).integers(0, 2 ** 31 - 1))
+    ctx = ScenarioContext(geom=geom, rate=RATE, duration=None, rng=np.random.default_rng([seed, 1]),
+                          elastic=_nominal_elastic(geom, home))
+    plan = hold_sine(ctx, amplitudes=CAL_AMPLITUDES, mode="sequential")
+    ik = inverse_kinematics(geom, plan.position, plan.orientation)
+    ml = ik.length - plan.elongation
+    temp = Ambient().profile(plan.t, np.random.default_rng([seed, 2]))
+    eq = equilibrium_run(geom, variant, [], [], t=plan.t, dt=1.0 / RATE, position=plan.position,
+                         orientation=plan.orientation, motor_length=ml, temperature=temp, balance=False)
+    meas = eq.measured + NOISE * np.random.default_rng([seed, 3]).standard_normal(eq.measured.shape)
+    N = plan.t.size
+    meta = {"generator": GENERATOR, "scenario": "hold-sine", "seed": str(seed), "rate": repr(RATE),
+            "scenario_params": json.dumps(jsonable(plan.params), sort_keys=True),
+            "truth": json.dumps(jsonable({"variant": variant.describe(), "noise_std": NOISE, "effects": [],
+                                          "platform": "clamped at home"}), sort_keys=True)}
+    rec = Recording(robot=rob.name, metadata=meta, t=plan.t, seq=np.arange(N, dtype=np.int64), motor_length=ml,
+                    position=plan.position, orientation=plan.orientation, force=meas, temperature=temp)
+    calib = strip_truth(rec)
+    t1 = time.perf_counter()
+    fit = identify_cable(calib, rob, "amplitude")
+    t2 = time.perf_counter()
+    sr = SimRobot(index=int(index), fleet_seed=int(fleet_seed), robot=rob, variant=variant, home_length=home,
+                  calib=calib, baseline=fit.params, calib_rmse=np.asarray(fit.rmse, float),
+                  seconds={"simulate": t1 - t0, "identify": t2 - t1})
+    _FLEET[key] = sr
+    return sr
+
+
+# --------------------------------------------------------------------------------------
+# one case
+# --------------------------------------------------------------------------------------
+
+
+@dataclass
+class RealisticCase:
+    """One case of the realistic bench (see the module docstring)."""
+
+    kind: str
+    names: list[str]
+    seed: int
+    robot: SimRobot
+    calib: Recording
+    baseline: ModelParams
+    recording: Recording
+    truth: dict[str, Any]
+    effects: list[Any]
+    effect_rms: dict[str, float]
+    wrench: dict[str, float]
+    seconds: dict[str, float]
+    clean_force: np.ndarray = field(repr=False, default=None)   # measured forces of the same run without effects, no noise
+
+
+@dataclass
+class _Traj:
+    t: np.ndarray
+    position: np.ndarray
+    orientation: np.ndarray
+    motor_length: np.ndarray
+    temperature: np.ndarray
+    params: dict[str, Any]
+
+
+def _trajectory(sr: SimRobot, seed: int, rng: np.random.Generator) -> _Traj:
+    geom = sr.robot.geometry()
+    ctx = ScenarioContext(geom=geom, rate=RATE, duration=DURATION, rng=np.random.default_rng([seed, 1]),
+                          elastic=_nominal_elastic(geom, sr.home_length))
+    kind = "ptp" if rng.random() < 0.6 else "sines"
+    plan = trajectory(ctx, kind=kind, min_tension=TENSION[0], max_tension=TENSION[1])
+    ik = inverse_kinematics(geom, plan.position, plan.orientation)
+    ml = ik.length - plan.elongation
+    temp = Ambient().profile(plan.t, np.random.default_rng([seed, 2]))
+    return _Traj(t=plan.t, position=plan.position, orientation=plan.orientation, motor_length=ml, temperature=temp,
+                 params=plan.params)
+
+
+def _run(sr: SimRobot, tr: _Traj, effects: list[Any], start: Optional[EquilibriumRun] = None) -> EquilibriumRun:
+    lib = [e for e in effects if isinstance(e, Effect)]
+    ool = [e for e in effects if isinstance(e, OolEffect)]
+    P = tr.position if start is None else start.position
+    Q = tr.orientation if start is None else start.orientation
+    return equilibrium_run(sr.robot.geometry(), sr.variant, lib, ool, t=tr.t, dt=1.0 / RATE, position=P,
+                           orientation=Q, motor_length=tr.motor_length, temperature=tr.temperature)
+
+
+def _make_effect(name: str, magnitude: float, cables: tuple[int, ...], opts: dict[str, Any]) -> Any:
+    if name in EFFECTS:
+        return EFFECTS[name](magnitude=magnitude, cables=cables)
+    return OOL_EFFECTS[name](magnitude=magnitude, cables=cables, **opts)
+
+
+def _draw_effect(name: str, m: int, rng: np.random.Generator) -> tuple[tuple[int, ...], float, dict[str, Any]]:
+    """Cables, signed reference magnitude and options of an effect."""
+    opts: dict[str, Any] = {}
+    if name == "mount":
+        i = int(rng.integers(0, m // 2))
+        cables = (i, i + m // 2)                 # upper and lower pulley on the same frame post (ipanema3)
+        ref = OOL_EFFECTS[name].default_magnitude
+    elif name == "anchor":
+        cables = (int(rng.integers(0, m)),)
+        d = rng.standard_normal(3)
+        opts["direction"] = tuple((d / np.linalg.norm(d)).tolist())
+        ref = OOL_EFFECTS[name].default_magnitude
+    elif name == "eccentricity":
+        cables = (int(rng.integers(0, m)),)
+        opts["drum_radius"] = float(rng.uniform(0.03, 0.08))
+        opts["phase"] = float(rng.uniform(0.0, 2.0 * math.pi))
+        ref = OOL_EFFECTS[name].default_magnitude
+    else:
+        k = int(rng.integers(1, 4))
+        cables = tuple(sorted(rng.choice(m, size=k, replace=False).tolist()))
+        ref = abs(EFFECTS[name].default_magnitude)
+        if name in SIGNED and rng.random() < 0.5:
+            ref = -ref
+    return cables, ref, opts
+
+
+def _effect_rms(meas: np.ndarray, base: np.ndarray, cables: tuple[int, ...]) -> float:
+    d = meas - base
+    return float(np.min(np.sqrt(np.mean(d[:, list(cables)] ** 2, axis=0))))
+
+
+def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Optional[SimRobot] = None,
+                        robot_index: int = 0, fleet_seed: int = 0,
+                        rng: Optional[np.random.Generator] = None) -> RealisticCase:
+    """Simulate one case: ``kind`` in :data:`KINDS`, ``names`` the concealed effects (twin
+    effect names, or for ``ool`` one of :data:`~cablesvc.bench.truth.OOL_EFFECTS`),
+    ``seed`` the trajectory/noise seed, ``robot`` (default: robot ``robot_index`` of fleet
+    ``fleet_seed``), ``rng`` the draws of cables and magnitudes (default from ``seed``)."""
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
+    unknown = [n for n in names if n not in EFFECTS and n not in OOL_EFFECTS]
+    if unknown:
+        raise ValueError(f"unknown effect(s) {unknown}; known: {', '.join(list(EFFECTS) + list(OOL_EFFECTS))}")
+    rng = rng if rng is not None else np.random.default_rng([seed, 77])
+    t0 = time.perf_counter()
+    sr = robot if robot is not None else calibrated_robot(robot_index, fleet_seed)
+    t1 = time.perf_counter()
+    geom = sr.robot.geometry()
+    m = geom.n_cables
+    tr = _trajectory(sr, seed, rng)
+    base = _run(sr, tr, [])
+    effects, rms, mags = [], {}, {}
+    for name in names:
+        cables, ref, opts = _draw_effect(name, m, rng)
+        target = NOISE * math.exp(rng.uniform(math.log(RATIO[0]), math.log(RATIO[1])))
+        p = POWER.get(name, 1.0)
+        e0 = _effect_rms(_run(sr, tr, [_make_effect(name, ref, cables, opts)], base).measured, base.measured, cables)
+        mag = ref * (target / max(e0, 1e-12)) ** (1.0 / p)
+        e1 = target
+        for _ in range(3 if name in NONLINEAR else 0):
+            e1 = _effect_rms(_run(sr, tr, [_make_effect(name, mag, cables, opts)], base).measured, base.measured,
+                             cables)
+            if abs(e1 / target - 1.0) < 0.15:
+                break
+            mag = mag * (target / max(e1, 1e-12)) ** (1.0 / p)
+        eff = _make_effect(name, mag, cables, opts)
+        effects.append(eff)
+        rms[name] = e1
+        mags[name] = mag
+    final = _run(sr, tr, effects, base) if effects else base
+    noise = NOISE * np.random.default_rng([seed, 3]).standard_normal(final.measured.shape)
+    meas = final.measured + noise
+    if effects:   # the RMS the case really has (all its effects on), per effect's cables
+        for e in effects:
+            rms[e.name] = _effect_rms(final.measured, base.measured, tuple(e.applied_cables or e.cables))
+    N = tr.t.size
+    cables = sorted({c for e in effects for c in (e.applied_cables or e.cables)})
+    truth = {"kind": kind, "effects": [e.to_dict() for e in effects], "names": sorted(names), "cables": cables,
+             "ool": kind == "ool", "robot": sr.index, "variant": sr.variant.describe(), "noise_std": NOISE,
+             "trajectory": tr.params}
+    meta = {"generator": GENERATOR, "scenario": "trajectory", "seed": str(seed), "rate": repr(RATE),
+            "scenario_params": json.dumps(jsonable(tr.params), sort_keys=True),
+            "truth": json.dumps(jsonable(truth), sort_keys=True)}
+    rec = Recording(robot=sr.robot.name, metadata=meta, t=tr.t, seq=np.arange(N, dtype=np.int64),
+                    motor_length=tr.motor_length, position=final.position, orientation=final.orientation,
+                    force=meas, temperature=tr.temperature)
+    wr = {"true_force_N": wrench_rms(geom, final.position, final.orientation, final.force),
+          "measured_noise_free_N": wrench_rms(geom, final.position, final.orientation, final.measured),
+          "measured_N": wrench_rms(geom, final.position, final.orientation, meas),
+          "passes": final.passes, "pose_shift_mm": 1e3 * float(np.max(np.linalg.norm(
+              final.position - tr.position, axis=1)))}
+    t2 = time.perf_counter()
+    return RealisticCase(kind=kind, names=list(names), seed=int(seed), robot=sr, calib=sr.calib,
+                         baseline=sr.baseline, recording=strip_truth(rec), truth=truth, effects=effects,
+                         effect_rms=rms, wrench=wr, seconds={"calibrate": t1 - t0, "simulate": t2 - t1},
+                         clean_force=base.measured)
+
+
+# --------------------------------------------------------------------------------------
+# a plan of cases
+# --------------------------------------------------------------------------------------
+
+
+@dataclass
+class CaseSpec:
+    """One planned case: ``kind``, effect ``names``, ``seed``, ``robot_index``, ``index``."""
+
+    kind: str
+    names: list[str]
+    seed: int
+    robot_index: int
+    index: int
+
+
+def case_plan(cases: int = 40, seed: int = 0, fleet: int = 4) -> list[CaseSpec]:
+    """``cases`` single-effect cases (the seven twin effects in turn), as many pairs
+    (pairs of different effects, drawn in turn from a shuffled list of all pairs), as many
+    controls, and ``cases // 2`` (at least 1) out-of-library cases (the three in turn);
+    robots of the fleet assigned in turn, so every kind meets every robot."""
+    rng = np.random.default_rng([seed, 6])
+    names = list(EFFECTS)
+    ool = list(OOL_EFFECTS)
+    plan: list[tuple[str, list[str]]] = [("single", [names[i % len(names)]]) for i in range(cases)]
+    pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
+    order = rng.permutation(len(pairs))
+    plan += [("pair", list(pairs[order[i % len(pairs)]])) for i in range(cases)]
+    plan += [("control", []) for _ in range(cases)]
+    plan += [("ool", [ool[i % len(ool)]]) for i in range(max(1, cases // 2))]
+    out = []
+    for i, (kind, nm) in enumerate(plan):
+        out.append(CaseSpec(kind=kind, names=nm, seed=int(rng.integers(0, 2 ** 31 - 1)),
+                            robot_index=i % max(1, int(fleet)), index=i))
+    return out
+
+
+def iter_cases(cases: int = 40, seed: int = 0, fleet: int = 4) -> Iterator[RealisticCase]:
+    """Yield the cases of :func:`case_plan` (robots of fleet ``seed``, calibrated on first use)."""
+    for spec in case_plan(cases, seed, fleet):
+        yield make_realistic_case(spec.kind, spec.names, spec.seed, robot_index=spec.robot_index, fleet_seed=seed,
+                                  rng=np.random.default_rng([seed, 7, spec.index]))
