@@ -383,6 +383,6 @@ def test_event_payload_round_trip_and_codes():
     json.dumps(p, allow_nan=False)
     back = AlarmEvent.from_payload(ev.payload())
     assert back.code == "drift" and back.cable == 3 and back.t == 12.5
-    assert set(ALARM_CODES) == {"drift", "slack", "over_limit", "wrench_residual", "input_stale", "input_lost", "input_fault",
+    assert set(ALARM_CODES) == {"drift", "spread", "slack", "over_limit", "wrench_residual", "input_stale", "input_lost", "input_fault",
                                 "amplitude_range"}
     assert replace(ev, action="clear").key == ev.key

@@ -1,11 +1,15 @@
-"""Alarms of the live service: model drift, predicted cable state, input health.
+"""Alarms of the live service: model drift and spread, predicted cable state, input health.
 
-Three detectors feed one :class:`~cablesvc.alarms.manager.AlarmManager`:
+Four detectors feed one :class:`~cablesvc.alarms.manager.AlarmManager`:
 
 - :class:`~cablesvc.alarms.drift.DriftDetector`: with measured forces, the per-cable
   residual (measured - predicted, N) is compared with a baseline learned in a warm-up
   period and tracked with an EWMA and a two-sided CUSUM. It raises ``drift`` when the
   cable model no longer fits (paper 002, Fig 6: a 0.4 N offset after a few days).
+- :class:`~cablesvc.alarms.spread.SpreadDetector`: with measured forces, the per-cable
+  spread of the residual against its sensor-noise floor. It raises ``spread`` when the
+  model misses a term whose error averages out (dead time, viscous or pulley friction),
+  which ``drift`` cannot see.
 - :class:`~cablesvc.alarms.state.StateAlarms`: without measured forces, from the
   prediction alone: ``slack``, ``over_limit``, ``wrench_residual``, ``amplitude_range``.
 - :class:`~cablesvc.alarms.state.InputWatch`: ``input_stale`` / ``input_lost`` when the
@@ -15,7 +19,7 @@ Every detector returns :class:`AlarmEvent` objects: one ``raise`` when a conditi
 held for its hold time, one ``clear`` when the opposite condition (with hysteresis) has
 held for its own hold time. Codes and severities are stable (``docs/messages.md``).
 
-The per-tick work of the drift and state detectors runs in small numba kernels (one call
+The per-tick work of the drift, spread and state detectors runs in small numba kernels (one call
 per tick for all cables; no Python loop per cable). The same compiled per-sample code is
 used tick by tick and by the offline ``update_batch``, so both give identical results.
 """
@@ -29,6 +33,7 @@ from typing import Any
 #: alarm code -> (severity, one-line meaning). The codes are stable API.
 ALARM_CODES: dict[str, tuple[str, str]] = {
     "drift": ("warning", "measured - predicted force of a cable drifted away from its baseline"),
+    "spread": ("warning", "measured - predicted force of a cable spreads more than its sensor noise explains"),
     "slack": ("warning", "predicted cable tension below the robot file's force_min"),
     "over_limit": ("error", "predicted cable tension above the robot file's force_max"),
     "wrench_residual": ("warning", "predicted forces do not balance the platform (|A^T f + w| vs its weight)"),
@@ -43,6 +48,8 @@ ACTIONS = ("raise", "clear")
 
 #: what a drift alarm suggests doing
 DRIFT_SUGGESTED_ACTION = "re-identify the cable model (cablesvc identify ...)"
+#: what a spread alarm suggests doing
+SPREAD_SUGGESTED_ACTION = "find the missing physics term (cablesvc discover ... --out augmented.toml)"
 
 
 def _num(v: float | None) -> float | None:
@@ -62,7 +69,7 @@ class AlarmEvent:
     of the event [s]; ``since`` controller time the condition started [s] (for a clear: the
     time the alarm was raised); ``seq`` the input tick or None; ``message`` plain words.
     ``offset_n`` (drift) the estimated offset of the residual from its baseline [N];
-    ``suggested_action`` (drift) what to do; ``value`` the measured quantity at the event
+    ``suggested_action`` (drift, spread) what to do; ``value`` the measured quantity at the event
     (N for forces and the wrench residual, m for amplitudes) and ``limit`` the threshold it
     was compared with, in the same unit.
     """
@@ -138,6 +145,7 @@ def _jit_inline(fn):
 
 _LAZY = {
     "DriftConfig": "cablesvc.alarms.drift", "DriftDetector": "cablesvc.alarms.drift",
+    "SpreadConfig": "cablesvc.alarms.spread", "SpreadDetector": "cablesvc.alarms.spread",
     "InputConfig": "cablesvc.alarms.state", "InputWatch": "cablesvc.alarms.state",
     "StateAlarmConfig": "cablesvc.alarms.state", "StateAlarms": "cablesvc.alarms.state",
     "AlarmConfig": "cablesvc.alarms.manager", "AlarmManager": "cablesvc.alarms.manager",
@@ -169,6 +177,9 @@ __all__ = [
     "InputConfig",
     "InputWatch",
     "SEVERITIES",
+    "SPREAD_SUGGESTED_ACTION",
+    "SpreadConfig",
+    "SpreadDetector",
     "StateAlarmConfig",
     "StateAlarms",
     "load_alarm_config",

@@ -51,7 +51,8 @@ from typing import Optional, Sequence
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from cablesvc.alarms import ALARM_CODES, DRIFT_SUGGESTED_ACTION, AlarmEvent, _jit, _jit_inline
+from cablesvc.alarms import DRIFT_SUGGESTED_ACTION, AlarmEvent, _jit, _jit_inline
+from cablesvc.alarms.residual import ResidualDetector, _ewma_gain, _sample_dt
 
 __all__ = ["DriftConfig", "DriftDetector"]
 
@@ -98,7 +99,7 @@ _STATE_NAMES = ("baseline", "ready", "warmup_t0", "warmup_sum", "warmup_n", "t_l
                 "since", "offset")
 # parameters
 (_P_WARMUP, _P_TAU, _P_K, _P_H, _P_CLIP, _P_RAISE_HOLD, _P_CLEAR, _P_CLEAR_HOLD, _P_MAX_DT) = range(9)
-# event record columns
+# event record columns (row and cable first, as ResidualDetector reads them)
 (_E_ROW, _E_CABLE, _E_ACTION, _E_SIDE, _E_SINCE, _E_OFFSET, _E_EWMA, _E_BASE) = range(8)
 _NE = 8
 
@@ -156,14 +157,10 @@ def _drift_sample(S, P, t, r, i, E, ne, row):
         if t - S[_W_T0, i] >= P[_P_WARMUP]:
             _start(S, i, t, S[_W_SUM, i] / S[_W_N, i])
         return ne
-    dt = t - S[_T_LAST, i]
-    if not dt > 0.0:                             # first sample after a preset baseline, or time going back
-        dt = 0.0
-    if dt > P[_P_MAX_DT]:
-        dt = P[_P_MAX_DT]
+    dt = _sample_dt(t, S[_T_LAST, i], P[_P_MAX_DT])   # 0: first sample after a preset baseline
     S[_T_LAST, i] = t
     z = r - S[_BASE, i]
-    S[_EWMA, i] += dt / (P[_P_TAU] + dt) * (z - S[_EWMA, i])
+    S[_EWMA, i] += _ewma_gain(dt, P[_P_TAU]) * (z - S[_EWMA, i])
     clip = P[_P_CLIP]
     zc = z
     if zc > clip:
@@ -266,7 +263,7 @@ def _drift_run(S, P, T, R, E, row0):
     return ne, row
 
 
-class DriftDetector:
+class DriftDetector(ResidualDetector):
     """Per-cable drift of the residual measured - predicted [N]; see the module docstring.
 
     ``n_cables`` m; ``config`` a :class:`DriftConfig`; ``cable_names`` for the messages.
@@ -275,21 +272,15 @@ class DriftDetector:
     returns exactly what the same ticks given one by one to :meth:`update` would.
     """
 
+    code = "drift"
+    n_state = _NS
+    n_record = _NE
+    _step = staticmethod(_drift_step)
+    _run = staticmethod(_drift_run)
+
     def __init__(self, n_cables: int, config: DriftConfig | None = None,
                  cable_names: Sequence[str] | None = None):
-        self.n_cables = m = int(n_cables)
-        if m < 1:
-            raise ValueError("n_cables must be >= 1")
-        self.config = config if config is not None else DriftConfig()
-        self.cable_names = tuple(cable_names) if cable_names is not None else tuple(f"cable{i}" for i in range(m))
-        if len(self.cable_names) != m:
-            raise ValueError(f"{len(self.cable_names)} cable names for {m} cables")
-        self._P = self.config.as_array()
-        self._S = np.zeros((_NS, m))
-        self._E = np.zeros((m, _NE))                   # one tick: at most one record per cable
-        self._Eb = np.zeros((max(4096, 4 * m), _NE))   # batch
-        self._shape = (m,)
-        self._severity = ALARM_CODES["drift"][0]
+        super().__init__(n_cables, config if config is not None else DriftConfig(), cable_names)
         self.reset()
         if self.config.baseline_n is not None:
             self.set_baseline(self.config.baseline_n)
@@ -342,57 +333,6 @@ class DriftDetector:
         """(m,) bool: a drift alarm is raised on the cable."""
         return self._S[_ACTIVE] > 0
 
-    # -- updates -----------------------------------------------------------------------------
-    def update(self, t: float, seq: int | None, residual: np.ndarray) -> list[AlarmEvent]:
-        """One tick: ``residual`` (m,) measured - predicted [N], NaN where a cable has no
-        measurement (skipped). ``t`` controller time [s]. Returns the events of this tick."""
-        if type(residual) is not np.ndarray or residual.shape != self._shape:
-            residual = self._coerce(residual)
-        try:
-            n = _drift_step(self._S, self._P, t, residual, self._E)
-        except TypeError:                      # int t, other dtype, read-only or strided array
-            n = _drift_step(self._S, self._P, float(t), self._coerce(residual), self._E)
-        if n == 0:
-            return []
-        return [self._event(self._E[j], float(t), seq) for j in range(n)]
-
-    def update_batch(self, t, residual_block, seq=None) -> list[AlarmEvent]:
-        """A block of ticks at once: ``t`` (n,) [s], ``residual_block`` (n, m) [N]. ``seq``:
-        None, the seq of the first row (then +1 per row) or an (n,) array. Returns the same
-        events, in the same order, with the same state afterwards, as n calls of :meth:`update`."""
-        T = np.ascontiguousarray(t, dtype=np.float64).reshape(-1)
-        R = np.ascontiguousarray(residual_block, dtype=np.float64)
-        if R.ndim != 2 or R.shape[1] != self.n_cables or R.shape[0] != T.shape[0]:
-            raise ValueError(f"residual_block must be (n, {self.n_cables}) with n = len(t) = {T.shape[0]}, "
-                             f"got {R.shape}")
-        if not R.flags.writeable:                     # numba signature wants writable arrays
-            R = R.copy()
-        if not T.flags.writeable:
-            T = T.copy()
-        seqs = None if seq is None or np.ndim(seq) == 0 else np.asarray(seq).reshape(-1)
-        events: list[AlarmEvent] = []
-        row = 0
-        n = T.shape[0]
-        E = self._Eb
-        while row < n:
-            ne, row = _drift_run(self._S, self._P, T, R, E, row)
-            for j in range(ne):
-                r = int(E[j, _E_ROW])
-                if seq is None:
-                    s = None
-                elif seqs is None:
-                    s = int(seq) + r
-                else:
-                    s = int(seqs[r])
-                events.append(self._event(E[j], float(T[r]), s))
-        return events
-
-    def _coerce(self, residual) -> np.ndarray:
-        r = np.array(residual, dtype=np.float64, order="C", copy=True).reshape(-1)
-        if r.shape != self._shape:
-            raise ValueError(f"residual must have {self.n_cables} values (one per cable), got shape {np.shape(residual)}")
-        return r
-
     def _event(self, rec: np.ndarray, t: float, seq: int | None) -> AlarmEvent:
         i = int(rec[_E_CABLE])
         name = self.cable_names[i]
@@ -411,19 +351,7 @@ class DriftDetector:
         return AlarmEvent("clear", "drift", i, self._severity, t, since, seq, msg, offset_n=off,
                           value=off, limit=cfg.clear_n)
 
-    # -- snapshots ---------------------------------------------------------------------------
-    def state_dict(self) -> dict[str, np.ndarray]:
-        """The detector's complete state (numeric arrays only; for the daemon's snapshots)."""
-        return {"state": self._S.copy(), "params": self._P.copy()}
-
-    def load_state_dict(self, d: dict[str, np.ndarray]) -> None:
-        """Continue from :meth:`state_dict`. The state must be of the same cable count; the
-        tuning stays this detector's own config."""
-        S = np.asarray(d["state"], dtype=np.float64)
-        if S.shape != self._S.shape:
-            raise ValueError(f"drift state of shape {S.shape} does not fit {self.n_cables} cables")
-        self._S[...] = S
-
+    # -- snapshots (state_dict / load_state_dict: ResidualDetector's) --------------------------
     def deactivate(self) -> None:
         """Drop every cable's active alarm and pending raise/clear, keeping the baseline and
         the statistics (for a restored state whose detector is disabled in this config).

@@ -1,15 +1,17 @@
-"""One place for the live service's alarms: drift, state alarms and the input watch.
+"""One place for the live service's alarms: drift, spread, state alarms and the input watch.
 
 The daemon calls :meth:`AlarmManager.on_tick` once per processed tick and
 :meth:`AlarmManager.on_idle` whenever its loop waits; both return the events to publish
 (usually none). The manager keeps the set of active alarms (what the status query shows),
 counts raises per code, and snapshots its state for restarts.
 
-Configuration is an :class:`AlarmConfig`, in TOML a table with three sub-tables::
+Configuration is an :class:`AlarmConfig`, in TOML a table with four sub-tables::
 
     [alarms.drift]          # DriftConfig: N, s
     warmup_s = 60.0
     cusum_h_ns = 2.0
+    [alarms.spread]         # SpreadConfig: N, s
+    raise_ratio = 1.5
     [alarms.state]          # StateAlarmConfig
     wrench_raise_fraction = 0.25
     [alarms.input]          # InputConfig: wall-clock s
@@ -29,6 +31,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from cablesvc.alarms import AlarmEvent
 from cablesvc.alarms.drift import DriftConfig, DriftDetector
+from cablesvc.alarms.spread import SpreadConfig, SpreadDetector
 from cablesvc.alarms.state import InputConfig, InputWatch, StateAlarmConfig, StateAlarms
 from cablesvc.config.params import ModelParams
 from cablesvc.config.robot import RobotGeometry
@@ -39,11 +42,12 @@ _STATE_CODES = ("slack", "over_limit", "amplitude_range", "wrench_residual")
 
 
 class AlarmConfig(BaseModel):
-    """All alarm settings: ``drift``, ``state`` and ``input`` sections."""
+    """All alarm settings: ``drift``, ``spread``, ``state`` and ``input`` sections."""
 
     model_config = ConfigDict(extra="forbid")
 
     drift: DriftConfig = Field(default_factory=DriftConfig)
+    spread: SpreadConfig = Field(default_factory=SpreadConfig)
     state: StateAlarmConfig = Field(default_factory=StateAlarmConfig)
     input: InputConfig = Field(default_factory=InputConfig)
 
@@ -68,7 +72,8 @@ def load_alarm_config(path: str | Path, table: str | None = "alarms") -> AlarmCo
 
 
 class AlarmManager:
-    """Holds a :class:`DriftDetector`, :class:`StateAlarms` and an :class:`InputWatch`.
+    """Holds a :class:`DriftDetector`, a :class:`SpreadDetector`, :class:`StateAlarms` and an
+    :class:`InputWatch`.
 
     ``geom`` the robot, ``params`` the cable model's parameters (for the identified
     amplitude range), ``config`` an :class:`AlarmConfig`.
@@ -81,18 +86,22 @@ class AlarmManager:
         self.state = StateAlarms(geom, params, cfg.state)
         self.watch = InputWatch(cfg.input.stale_s, cfg.input.lost_s, enabled=cfg.input.enabled)
         self._drift_on = bool(cfg.drift.enabled)
+        self.spread = SpreadDetector(geom.n_cables, cfg.spread, geom.cable_names)
+        self._spread_on = bool(cfg.spread.enabled)
         self._active: dict[tuple[str, int | None], AlarmEvent] = {}
         self.counters: dict[str, int] = {}          # raises per code since start (or snapshot)
         self.events_total = 0
 
     def on_tick(self, t: float, seq: int | None, out) -> list[AlarmEvent]:
         """One processed tick (``out`` the kernel's :class:`~cablesvc.kernel.TickOutput`).
-        Drift runs on the cables whose ``out.residual`` is finite (measured forces present)."""
+        Drift and spread run on the cables whose ``out.residual`` is finite (measured forces
+        present)."""
         ev = self.watch.tick(t, seq)
         ev2 = self.state.update(t, seq, out)
         ev3 = self.drift.update(t, seq, out.residual) if self._drift_on else ev2[:0]
-        if ev or ev2 or ev3:
-            events = ev + ev2 + ev3
+        ev4 = self.spread.update(t, seq, out.residual) if self._spread_on else ev2[:0]
+        if ev or ev2 or ev3 or ev4:
+            events = ev + ev2 + ev3 + ev4
             self._account(events)
             return events
         return ev
@@ -138,6 +147,7 @@ class AlarmManager:
         active alarms and counters. The input watch restarts with the process."""
         return {
             "drift": self.drift.state_dict(),
+            "spread": self.spread.state_dict(),
             "state": self.state.state_dict(),
             "active": np.array(json.dumps([e.payload() for e in self._active.values()])),
             "counters": np.array(json.dumps(self.counters)),
@@ -147,6 +157,8 @@ class AlarmManager:
         """Whether the detector of alarm ``code`` runs with this manager's config."""
         if code == "drift":
             return self._drift_on
+        if code == "spread":
+            return self._spread_on
         if code in _STATE_CODES:
             return self.state.enabled(code)
         return True
@@ -166,6 +178,10 @@ class AlarmManager:
             self.drift.load_state_dict(d["drift"])
             if not self._drift_on:
                 self.drift.deactivate()
+        if "spread" in d and "state" in d["spread"]:      # snapshots from before the spread alarm lack it
+            self.spread.load_state_dict(d["spread"])
+            if not self._spread_on:
+                self.spread.deactivate()
         if "state" in d and "state" in d["state"]:
             self.state.load_state_dict(d["state"])       # zeroes the disabled channels itself
         if "active" in d:

@@ -122,7 +122,7 @@ ALARM_SCHEMA: dict[str, Any] = {
         "seq": {"type": ["integer", "null"], "description": "input tick of the event"},
         "message": {"type": "string", "description": "plain words"},
         "offset_n": {"type": ["number", "null"], "description": "drift: estimated offset from the baseline, N"},
-        "suggested_action": {"type": ["string", "null"], "description": "drift: what to do"},
+        "suggested_action": {"type": ["string", "null"], "description": "drift, spread: what to do"},
         "value": {"type": ["number", "null"],
                   "description": "the quantity at the event (N; m for amplitude_range; s for input alarms)"},
         "limit": {"type": ["number", "null"], "description": "the threshold it was compared with, same unit"},

@@ -1,0 +1,269 @@
+"""Spread detector: per-cable spread of the residual (measured - predicted) vs its noise floor.
+
+``drift`` watches the residual's mean. A model that misses a term whose contribution
+averages to zero over the motion (a dead time, a viscous force c v, a pulley friction
+F sign(v)) leaves the mean where it was and only widens the residual: this detector
+raises ``spread`` on a cable when its residual varies by more than its sensor noise can
+explain, and suggests ``cablesvc discover`` to find the missing term.
+
+Per cable i and per sample with a finite residual r [N] (NaN = no measurement: skipped,
+the cable's state does not change):
+
+1. **Sample weight** dt: time since the cable's previous valid sample, at most
+   ``max_dt_s`` (:func:`~cablesvc.alarms.residual._sample_dt`, the same as drift's). Every
+   statistic below is an EWMA with a time constant in seconds and gain
+   dt / (tau + dt) (:func:`~cablesvc.alarms.residual._ewma_gain`), so the tuning does not
+   depend on the tick rate.
+2. **Mean** mu: EWMA of r with ``mean_tau_s``; z = r - mu (mu before this sample).
+   Changes slower than ``mean_tau_s`` are the mean's (``drift``'s business), faster ones
+   are spread.
+3. **Spread** s^2: EWMA of z^2 with ``tau_s``.
+4. **Noise floor** q: EWMA of (r - r_prev)^2 / 2 with ``tau_s``, over consecutive
+   samples at most ``max_dt_s`` apart: the live form of the offline floor
+   std(diff r) / sqrt 2 of ``cablesvc discover`` (:func:`cablesvc.discover.locate.noise_floor`).
+   White noise of std sigma gives s^2 = q = sigma^2 at any tick rate; a term that varies
+   smoothly over many ticks adds its variance to s^2 but almost nothing to q. The floor
+   used is max(sqrt q, ``floor_min_n``) (a residual without noise, e.g. a simulation
+   replayed through its own model, has no meaningful ratio).
+5. **Ratio** rho = s / floor. After ``warmup_s`` seconds of valid samples (the EWMAs
+   settle), **raise** when rho > ``raise_ratio`` continuously for ``raise_hold_s``;
+   **clear** when rho < ``clear_ratio`` (hysteresis) for ``clear_hold_s``. The hold timers
+   are the state alarms' (:func:`cablesvc.alarms.state._hold`): a timer that started after
+   the current t (clock restarted, older snapshot restored) restarts at t.
+
+The event's ``value`` is the spread s [N] and ``limit`` the threshold ``raise_ratio`` x
+floor [N] (for a clear, ``clear_ratio`` x floor); ``since`` the time rho went above
+``raise_ratio``.
+
+Limits of the method (``docs/messages.md`` has the measured numbers): a model that
+already leaves a structured residual above ``raise_ratio`` x the noise keeps the alarm
+raised until the term is found (``cablesvc discover``) or ``raise_ratio`` is raised; a
+step of the mean by several times the noise raises ``spread`` for about ``mean_tau_s``
+beside ``drift``; sensor noise that is not white at the tick rate (a low-pass filter in
+the amplifier) lowers q below sigma^2 and so raises rho: measure rho on a good run
+(:attr:`SpreadDetector.ratio`) and set ``raise_ratio`` above it.
+
+Like the drift detector, the per-sample work is one numba kernel shared by :meth:`update`
+(one call per tick for all cables, no allocation unless an event happens) and
+:meth:`update_batch` (a block of ticks in one call, bit-identical).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from cablesvc.alarms import SPREAD_SUGGESTED_ACTION, AlarmEvent, _jit, _jit_inline
+from cablesvc.alarms.residual import ResidualDetector, _ewma_gain, _sample_dt
+from cablesvc.alarms.state import _ACTIVE, _CLEAR_SINCE, _RAISE_SINCE, _SINCE, _hold
+
+__all__ = ["SpreadConfig", "SpreadDetector"]
+
+
+class SpreadConfig(BaseModel):
+    """Tuning of the spread detector (``[alarms.spread]`` in a TOML file). SI units: N, s."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    enabled: bool = Field(True, description="run the detector when measured forces are present")
+    warmup_s: float = Field(30.0, ge=0.0, description="seconds of valid samples before the first decision [s]")
+    mean_tau_s: float = Field(10.0, gt=0.0, description="EWMA time constant of the mean removed from the residual [s]")
+    tau_s: float = Field(5.0, gt=0.0, description="EWMA time constant of the spread and of the noise floor [s]")
+    raise_ratio: float = Field(1.5, gt=1.0, description="spread / noise floor above this raises")
+    clear_ratio: float = Field(1.2, gt=0.0, description="spread / noise floor below this clears (hysteresis)")
+    raise_hold_s: float = Field(2.0, ge=0.0, description="ratio must stay above raise_ratio this long to raise [s]")
+    clear_hold_s: float = Field(10.0, ge=0.0, description="ratio must stay below clear_ratio this long to clear [s]")
+    floor_min_n: float = Field(1e-3, gt=0.0, description="smallest noise floor used [N]")
+    max_dt_s: float = Field(0.1, gt=0.0, description="largest weight of one sample; larger gaps skip the floor [s]")
+
+    @model_validator(mode="after")
+    def _check(self) -> "SpreadConfig":
+        if self.clear_ratio >= self.raise_ratio:
+            raise ValueError(f"clear_ratio ({self.clear_ratio}) must be below raise_ratio ({self.raise_ratio}) "
+                             "(hysteresis)")
+        return self
+
+    def as_array(self) -> np.ndarray:
+        """Parameter vector of the kernel (order: the _P_* indices)."""
+        return np.array([self.warmup_s, self.mean_tau_s, self.tau_s, self.raise_ratio, self.clear_ratio,
+                         self.raise_hold_s, self.clear_hold_s, self.floor_min_n, self.max_dt_s], dtype=np.float64)
+
+
+# ---- kernel layout -----------------------------------------------------------------------
+# state rows (NS, m): the hold-timer rows of cablesvc.alarms.state first, then ours
+_R0 = max(_ACTIVE, _RAISE_SINCE, _CLEAR_SINCE, _SINCE) + 1
+(_READY, _W_T0, _T_LAST, _R_PREV, _MEAN, _VAR, _FLOOR) = range(_R0, _R0 + 7)
+_NS = _R0 + 7
+_STATE_NAMES = {_ACTIVE: "active", _RAISE_SINCE: "raise_since", _CLEAR_SINCE: "clear_since", _SINCE: "since",
+                _READY: "ready", _W_T0: "warmup_t0", _T_LAST: "t_last", _R_PREV: "r_prev", _MEAN: "mean",
+                _VAR: "spread_sq", _FLOOR: "floor_sq"}
+# parameters
+(_P_WARMUP, _P_MEAN_TAU, _P_TAU, _P_RAISE, _P_CLEAR, _P_RAISE_HOLD, _P_CLEAR_HOLD, _P_FLOOR_MIN,
+ _P_MAX_DT) = range(9)
+# event record columns (row and cable first, as ResidualDetector reads them): row, cable, action (+1 raise, -1 clear), since, spread [N], floor [N]
+(_E_ROW, _E_CABLE, _E_ACTION, _E_SINCE, _E_SPREAD, _E_FLOOR) = range(6)
+_NE = 6
+
+
+@_jit_inline
+def _spread_sample(S, P, t, r, i, E, ne, row):
+    """One sample r [N] of cable i at time t [s]; appends raise/clear records to E[ne:].
+    Returns the new number of records."""
+    if not math.isfinite(r):                     # NaN: no measurement, skipped (and so is +-inf)
+        return ne
+    t_last = S[_T_LAST, i]
+    if t_last != t_last:                         # first sample: start the statistics at it
+        S[_T_LAST, i] = t
+        S[_R_PREV, i] = r
+        S[_MEAN, i] = r
+        S[_W_T0, i] = t
+        return ne
+    gap = t - t_last
+    dt = _sample_dt(t, t_last, P[_P_MAX_DT])
+    z = r - S[_MEAN, i]
+    S[_MEAN, i] += _ewma_gain(dt, P[_P_MEAN_TAU]) * z
+    g = _ewma_gain(dt, P[_P_TAU])
+    S[_VAR, i] += g * (z * z - S[_VAR, i])
+    if gap <= P[_P_MAX_DT]:                      # consecutive samples: their difference is noise
+        d = r - S[_R_PREV, i]
+        S[_FLOOR, i] += g * (0.5 * d * d - S[_FLOOR, i])
+    S[_T_LAST, i] = t
+    S[_R_PREV, i] = r
+    if S[_READY, i] == 0.0:
+        if t < S[_W_T0, i]:                      # the clock went back: restart the warm-up
+            S[_W_T0, i] = t
+        if t - S[_W_T0, i] < P[_P_WARMUP]:
+            return ne
+        S[_READY, i] = 1.0
+    fl = math.sqrt(S[_FLOOR, i])
+    if fl < P[_P_FLOOR_MIN]:
+        fl = P[_P_FLOOR_MIN]
+    s = math.sqrt(S[_VAR, i])
+    a = _hold(S, i, t, s > P[_P_RAISE] * fl, s < P[_P_CLEAR] * fl, P[_P_RAISE_HOLD], P[_P_CLEAR_HOLD])
+    if a != 0:
+        E[ne, _E_ROW] = row
+        E[ne, _E_CABLE] = i
+        E[ne, _E_ACTION] = a
+        E[ne, _E_SINCE] = S[_SINCE, i]
+        E[ne, _E_SPREAD] = s
+        E[ne, _E_FLOOR] = fl
+        ne += 1
+    return ne
+
+
+@_jit("int64(float64[:, ::1], float64[::1], float64, float64[::1], float64[:, ::1])")
+def _spread_step(S, P, t, r, E):
+    """One tick: sample r[i] of every cable at time t. Returns the number of event records."""
+    ne = 0
+    for i in range(S.shape[1]):
+        ne = _spread_sample(S, P, t, r[i], i, E, ne, 0)
+    return ne
+
+
+@_jit("UniTuple(int64, 2)(float64[:, ::1], float64[::1], float64[::1], float64[:, ::1], float64[:, ::1], int64)")
+def _spread_run(S, P, T, R, E, row0):
+    """Ticks row0.. of a block (T (n,) [s], R (n, m) [N]) until the end of the block or until
+    E cannot hold one more tick's records. Returns (records, next row)."""
+    m = S.shape[1]
+    cap = E.shape[0]
+    ne = 0
+    row = row0
+    n = T.shape[0]
+    while row < n and ne + m <= cap:
+        t = T[row]
+        for i in range(m):
+            ne = _spread_sample(S, P, t, R[row, i], i, E, ne, row)
+        row += 1
+    return ne, row
+
+
+class SpreadDetector(ResidualDetector):
+    """Per-cable spread of the residual measured - predicted [N] against its noise floor;
+    see the module docstring.
+
+    ``n_cables`` m; ``config`` a :class:`SpreadConfig`; ``cable_names`` for the messages.
+    :meth:`update` takes one tick (m residuals, NaN = no measurement) and returns the alarm
+    events of that tick (usually none); :meth:`update_batch` takes a block of ticks and
+    returns exactly what the same ticks given one by one to :meth:`update` would.
+    """
+
+    code = "spread"
+    n_state = _NS
+    n_record = _NE
+    _step = staticmethod(_spread_step)
+    _run = staticmethod(_spread_run)
+
+    def __init__(self, n_cables: int, config: SpreadConfig | None = None,
+                 cable_names: Sequence[str] | None = None):
+        super().__init__(n_cables, config if config is not None else SpreadConfig(), cable_names)
+        self.reset()
+
+    def reset(self, cables: Sequence[int] | None = None) -> None:
+        """Forget everything of these cables (default: all), active alarms included; their
+        statistics restart with the next sample and the warm-up with them. No clear event."""
+        idx = slice(None) if cables is None else np.asarray(list(cables), dtype=int)
+        S = self._S
+        S[:, idx] = 0.0
+        for row in (_RAISE_SINCE, _CLEAR_SINCE, _SINCE, _W_T0, _T_LAST, _R_PREV, _MEAN):
+            S[row, idx] = np.nan
+
+    # -- read-outs ---------------------------------------------------------------------------
+    @property
+    def ready(self) -> np.ndarray:
+        """(m,) bool: the cable's warm-up is over (decisions are made)."""
+        return self._S[_READY] > 0
+
+    @property
+    def spread(self) -> np.ndarray:
+        """Current spread s per cable [N] (NaN before the first sample)."""
+        return np.where(np.isnan(self._S[_T_LAST]), np.nan, np.sqrt(self._S[_VAR]))
+
+    @property
+    def floor(self) -> np.ndarray:
+        """Current noise floor per cable [N], at least ``floor_min_n`` (NaN before the first sample)."""
+        fl = np.maximum(np.sqrt(self._S[_FLOOR]), self.config.floor_min_n)
+        return np.where(np.isnan(self._S[_T_LAST]), np.nan, fl)
+
+    @property
+    def ratio(self) -> np.ndarray:
+        """Spread / noise floor per cable (1 for white noise; NaN before the first sample)."""
+        return self.spread / self.floor
+
+    @property
+    def active(self) -> np.ndarray:
+        """(m,) bool: a spread alarm is raised on the cable."""
+        return self._S[_ACTIVE] > 0
+
+    def _event(self, rec: np.ndarray, t: float, seq: int | None) -> AlarmEvent:
+        i = int(rec[_E_CABLE])
+        who = f"cable {i} ({self.cable_names[i]})"
+        since = float(rec[_E_SINCE])
+        s = float(rec[_E_SPREAD])
+        fl = float(rec[_E_FLOOR])
+        cfg = self.config
+        if rec[_E_ACTION] > 0:
+            msg = (f"{who}: measured - predicted force spreads {s:.3f} N, {s / fl:.1f} x its noise floor of "
+                   f"{fl:.3f} N, since t = {since:.1f} s; the cable model misses a term that averages out "
+                   f"(dead time, viscous or pulley friction, ...)")
+            return AlarmEvent("raise", "spread", i, self._severity, t, since, seq, msg,
+                              suggested_action=SPREAD_SUGGESTED_ACTION, value=s, limit=cfg.raise_ratio * fl)
+        msg = (f"{who}: measured - predicted force spreads {s:.3f} N, back below {cfg.clear_ratio:g} x its "
+               f"noise floor of {fl:.3f} N")
+        return AlarmEvent("clear", "spread", i, self._severity, t, since, seq, msg, value=s,
+                          limit=cfg.clear_ratio * fl)
+
+    # -- snapshots (state_dict / load_state_dict: ResidualDetector's) --------------------------
+    def deactivate(self) -> None:
+        """Drop every cable's active alarm and pending raise/clear, keeping the statistics
+        (for a restored state whose detector is disabled in this config). No clear event."""
+        S = self._S
+        S[_ACTIVE] = 0.0
+        for row in (_RAISE_SINCE, _CLEAR_SINCE, _SINCE):
+            S[row] = np.nan
+
+    def describe_state(self) -> dict[str, list[float]]:
+        """Named rows of the state (for debugging and tests)."""
+        return {name: self._S[k].tolist() for k, name in sorted(_STATE_NAMES.items())}
