@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 import re
-from typing import BinaryIO, Iterator, Optional
+from typing import Any, BinaryIO, Callable, Iterator, Optional
 
 import numpy as np
 
@@ -36,6 +37,10 @@ _CABLE_COLUMN = re.compile(r"^([lf])(0|[1-9][0-9]*)$")
 _NAN = math.nan
 _INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
 _BOM = b"\xef\xbb\xbf"
+# a number as format 1 writes it (Python repr of a float, or an integer): what int() and
+# float() read, less the digit separators and non-ASCII digits they also accept
+_PLAIN_NUMBER = re.compile(r"[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|inf|infinity|nan)",
+                           re.IGNORECASE)
 
 
 def csv_header(n_cables: int, has_force: bool, has_temperature: bool) -> list[str]:
@@ -62,6 +67,22 @@ def _fmt(v: float) -> str:
     return "" if v != v else repr(v)
 
 
+def _meta_lines(robot: str, metadata: dict[str, str]) -> list[tuple[str, str]]:
+    """The ``# key: value`` lines cablesvc writes: robot (when known), format, the rest."""
+    meta: list[tuple[str, str]] = []
+    if robot:
+        _check_meta("value", robot, key=False)
+        meta.append(("robot", robot))
+    meta.append(("format", str(FORMAT_VERSION)))
+    for k, v in metadata.items():
+        if k in ("robot", "format"):
+            raise ValueError(f"metadata key {k!r} is reserved (robot is Recording.robot)")
+        _check_meta("key", k, key=True)
+        _check_meta("value", v, key=False)
+        meta.append((k, v))
+    return meta
+
+
 def write_csv(path: PathArg, rec: Recording) -> None:
     """Write ``rec`` as a format-1 CSV file (``rec.extra`` is not written: CSV has no topics)."""
     problems = rec.shape_problems()
@@ -69,18 +90,7 @@ def write_csv(path: PathArg, rec: Recording) -> None:
         raise ValueError(f"{path}: cannot write recording: " + "; ".join(problems))
     if not np.isfinite(rec.t).all():
         raise ValueError(f"{path}: t must be finite at every tick")
-    meta: list[tuple[str, str]] = []
-    if rec.robot:
-        _check_meta("value", rec.robot, key=False)
-        meta.append(("robot", rec.robot))
-    meta.append(("format", str(FORMAT_VERSION)))
-    for k, v in rec.metadata.items():
-        if k in ("robot", "format"):
-            raise ValueError(f"metadata key {k!r} is reserved (robot is Recording.robot)")
-        _check_meta("key", k, key=True)
-        _check_meta("value", v, key=False)
-        meta.append((k, v))
-
+    meta = _meta_lines(rec.robot, rec.metadata)
     n, m = rec.n_ticks, rec.n_cables
     blocks = []
     if rec.position is not None and rec.orientation is not None:
@@ -103,6 +113,102 @@ def write_csv(path: PathArg, rec: Recording) -> None:
         write = f.write
         for i in range(n):
             write(f"{t[i]!r},{seq[i]},{','.join(map(_fmt, values[i]))}\n")
+
+
+def _cells(x: Any, n: int, name: str) -> list[str]:
+    """``n`` cells of a part of a tick (None: all empty), NaN as an empty cell."""
+    if x is None:
+        return [""] * n
+    vals = np.asarray(x, dtype=np.float64).reshape(-1).tolist()
+    if len(vals) != n:
+        raise ValueError(f"{name} has {len(vals)} values, expected {n}")
+    return [_fmt(v) for v in vals]
+
+
+class CsvRecordingWriter:
+    """Write a format-1 CSV recording tick by tick (the live service's ``--record x.csv``).
+
+    The same ``write_input`` as :class:`~cablesvc.recording.McapRecordingWriter`; CSV has no
+    topics, so it holds the inputs only (forces and alarms need MCAP). The header is written
+    with the first tick (it fixes the cable count) and always has the force and temperature
+    columns: a tick without force or temperature leaves them empty, which a reader takes as
+    absent, so nothing is lost and nothing is invented. Metadata values must be one line.
+    ``overwrite=False`` refuses an existing file (``FileExistsError``) instead of replacing it.
+    Not thread-safe: call from one thread.
+    """
+
+    has_topics = False
+
+    def __init__(self, path: PathArg, robot: str, metadata: Optional[dict[str, str]] = None,
+                 *, overwrite: bool = True):
+        if not isinstance(robot, str) or not robot:
+            raise ValueError("robot must be a non-empty str (the robot's name)")
+        meta = _meta_lines(robot, dict(metadata or {}))
+        self.path = path
+        self._f = open(path, "w" if overwrite else "x", encoding="utf-8", newline="\n")
+        try:
+            self._f.write("".join(f"# {k}: {v}\n" for k, v in meta))
+        except BaseException:
+            self._f.close()
+            raise
+        self._n_cables: Optional[int] = None
+        self._closed = False
+        self.n_inputs = 0
+        """Number of ticks written so far."""
+
+    def __enter__(self) -> "CsvRecordingWriter":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def write_input(self, seq: int, t: float, motor_length: Any, force: Any = None, position: Any = None,
+                    orientation: Any = None, temperature: Optional[float] = None) -> None:
+        """One line; arguments as :meth:`McapRecordingWriter.write_input`."""
+        if self._closed:
+            raise ValueError(f"{self.path}: writer is closed")
+        if isinstance(seq, (bool, np.bool_)) or not isinstance(seq, (int, np.integer)):
+            raise TypeError(f"seq must be an integer, got {type(seq).__name__}")
+        seq = int(seq)
+        if not _INT64_MIN <= seq <= _INT64_MAX:
+            raise ValueError(f"seq = {seq} does not fit in a signed 64-bit integer")
+        t = float(t)
+        if not math.isfinite(t):
+            raise ValueError(f"t must be finite, got {t!r}")
+        ml = np.asarray(motor_length, dtype=np.float64).reshape(-1)
+        if self._n_cables is None:
+            if not ml.size:
+                raise ValueError("motor_length is empty: a robot has at least one cable")
+            self._n_cables = int(ml.size)
+            self._f.write(",".join(csv_header(self._n_cables, True, True)) + "\n")
+        m = self._n_cables
+        if (position is None) != (orientation is None):
+            raise ValueError("position and orientation must be given together")
+        temp = "" if temperature is None else _fmt(float(temperature))
+        line = ",".join([repr(t), str(seq), *_cells(position, 3, "position"),
+                         *_cells(orientation, 4, "orientation"), *_cells(ml, m, "motor_length"),
+                         *_cells(force, m, "force"), temp])
+        self._f.write(line + "\n")
+        self.n_inputs += 1
+
+    def flush(self, fsync: bool = False) -> None:
+        """Hand the lines written so far to the OS (``fsync``: also to the disk)."""
+        if self._closed:
+            raise ValueError(f"{self.path}: writer is closed")
+        self._f.flush()
+        if fsync:
+            os.fsync(self._f.fileno())
+
+    def close(self) -> None:
+        """Flush and close the file. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        self._f.close()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
 
 
 class _CsvSource:
@@ -128,9 +234,10 @@ class _CsvSource:
     def close(self) -> None:
         self._f.close()
 
-    def _physical_lines(self) -> Iterator[tuple[int, str]]:
+    def _physical_lines(self) -> Iterator[tuple[int, "str | RecordingError"]]:
         """Yield ``(line number, text without line end)``; ``\n``, ``\r\n`` and ``\r``
-        end a line (as in an editor). A UTF-8 BOM at the start is skipped."""
+        end a line (as in an editor). A UTF-8 BOM at the start is skipped. A line that is
+        not UTF-8 is yielded as its :class:`RecordingError` (the lines after it still come)."""
         lineno = 0
         first = True
         for raw in self._f:
@@ -144,10 +251,11 @@ class _CsvSource:
                 try:
                     text = b.decode("utf-8")
                 except UnicodeDecodeError as e:
-                    raise self._err(
+                    yield lineno, self._err(
                         lineno, None, f"not UTF-8 text: byte {b[e.start]:#04x} at column "
-                        f"{len(b[:e.start].decode('utf-8')) + 1} ({e.reason})"
-                    ) from None
+                        f"{len(b[:e.start].decode('utf-8', 'replace')) + 1} ({e.reason})"
+                    )
+                    continue
                 yield lineno, text
 
     def _split(self, line: str, lineno: int) -> list[str]:
@@ -169,6 +277,8 @@ class _CsvSource:
         lineno = 0
         header_line: Optional[str] = None
         for lineno, line in self._lines:
+            if isinstance(line, RecordingError):
+                raise line
             stripped = line.strip()
             if not stripped:
                 continue
@@ -277,60 +387,90 @@ class _CsvSource:
         self.float_cols = order
         self.float_names = [names[j] for j in order]
 
-    def rows(self) -> Iterator[tuple[int, list[float]]]:
-        """Yield ``(seq, floats)`` per tick; floats in the order of ``float_cols``."""
-        n_fields = self.n_fields
-        seq_col = self.seq_col
-        cols = list(zip(self.float_cols, self.float_names))
+    def rows(self, on_error: Optional[Callable[[RecordingError], None]] = None
+             ) -> Iterator[tuple[int, list[float]]]:
+        """Yield ``(seq, floats)`` per tick; floats in the order of ``float_cols``.
+
+        A bad line (wrong number of fields, a field that is not a number, no ``t`` or
+        ``seq``, not UTF-8, ...) raises its :class:`RecordingError`, naming line and column;
+        with ``on_error`` it is handed to ``on_error`` instead and skipped, and the lines
+        after it are read (one damaged line costs one tick, not the rest of the file)."""
         lineno = self.lineno
-        split = self._split
         try:
             for lineno, line in self._lines:
-                if not line.strip():
-                    continue
-                if line.lstrip().startswith("#"):
-                    raise self._err(
-                        lineno, None, "'#' line after the header (metadata lines must come "
-                        "before it)"
-                    )
-                parts = line.split(",") if '"' not in line else split(line, lineno)
-                if len(parts) != n_fields:
-                    raise self._err(
-                        lineno,
-                        None,
-                        f"wrong number of fields: {len(parts)}, the header (line "
-                        f"{self.header_lineno}) has {n_fields}",
-                    )
-                s = parts[seq_col]
                 try:
-                    seq = int(s)
-                except ValueError:
-                    what = "empty (seq is required)" if not s.strip() else (
-                        f"{s.strip()!r} is not an integer")
-                    raise self._err(lineno, "seq", what) from None
-                if not _INT64_MIN <= seq <= _INT64_MAX:
-                    raise self._err(
-                        lineno, "seq", f"{seq} does not fit in a signed 64-bit integer"
-                    )
-                vals = []
-                for j, name in cols:
-                    s = parts[j]
-                    try:
-                        vals.append(float(s))
-                    except ValueError:
-                        if s.strip():
-                            raise self._err(
-                                lineno, name, f"{s.strip()!r} is not a number"
-                            ) from None
-                        vals.append(_NAN)
-                if not math.isfinite(vals[0]):
-                    raise self._err(
-                        lineno, "t", "empty (t is required)" if not parts[cols[0][0]].strip()
-                        else f"t must be finite, got {parts[cols[0][0]].strip()!r}"
-                    )
-                yield seq, vals
+                    if isinstance(line, RecordingError):
+                        raise line
+                    row = self._row(lineno, line)
+                except RecordingError as e:
+                    if on_error is None:
+                        raise
+                    on_error(e)
+                    continue
+                if row is not None:
+                    yield row
         finally:
             self.lineno = lineno
+
+    def _row(self, lineno: int, line: str) -> Optional[tuple[int, list[float]]]:
+        """``(seq, floats)`` of one data line; None for a blank line; RecordingError if bad."""
+        if not line.strip():
+            return None
+        if line.lstrip().startswith("#"):
+            raise self._err(
+                lineno, None, "'#' line after the header (metadata lines must come before it)"
+            )
+        parts = line.split(",") if '"' not in line else self._split(line, lineno)
+        if len(parts) != self.n_fields:
+            raise self._err(
+                lineno,
+                None,
+                f"wrong number of fields: {len(parts)}, the header (line "
+                f"{self.header_lineno}) has {self.n_fields}",
+            )
+        if "_" in line or not line.isascii():
+            self._plain_numbers(parts, lineno)
+        s = parts[self.seq_col]
+        try:
+            seq = int(s)
+        except ValueError:
+            what = "empty (seq is required)" if not s.strip() else (
+                f"{s.strip()!r} is not an integer")
+            raise self._err(lineno, "seq", what) from None
+        if not _INT64_MIN <= seq <= _INT64_MAX:
+            raise self._err(lineno, "seq", f"{seq} does not fit in a signed 64-bit integer")
+        vals = []
+        for j, name in zip(self.float_cols, self.float_names):
+            s = parts[j]
+            try:
+                vals.append(float(s))
+            except ValueError:
+                if s.strip():
+                    raise self._err(lineno, name, f"{s.strip()!r} is not a number") from None
+                vals.append(_NAN)
+        if not math.isfinite(vals[0]):
+            t_cell = parts[self.float_cols[0]].strip()
+            raise self._err(
+                lineno, "t", "empty (t is required)" if not t_cell
+                else f"t must be finite, got {t_cell!r}"
+            )
+        return seq, vals
+
+    def _plain_numbers(self, parts: list[str], lineno: int) -> None:
+        """Python's ``int`` and ``float`` also read ``1_000`` (as 1000) and non-ASCII digits
+        (``'\u0661'`` as 1): neither is a number in a format-1 CSV file. Refuse the first such
+        field, naming its column (only lines with ``_`` or non-ASCII text get here)."""
+        for j, cell in enumerate(parts):
+            c = cell.strip()
+            if c and not _PLAIN_NUMBER.fullmatch(c):
+                if "_" in c and _PLAIN_NUMBER.fullmatch(c.replace("_", "")):
+                    what = " (digit separators '_' are not allowed)"
+                elif not c.isascii():
+                    what = " (only ASCII digits are numbers here)"
+                else:
+                    what = ""
+                name = self.names[j] if j < len(self.names) else str(j + 1)
+                raise self._err(lineno, name, f"{c!r} is not a number{what}")
 
     def tick(self, seq: int, v: list[float]) -> Tick:
         position = orientation = None
@@ -366,16 +506,33 @@ class _CsvSource:
 
 def read_csv(path: PathArg, *, robot_cables: Optional[int] = None) -> Recording:
     """Read a format-1 CSV recording. ``robot`` is ``""`` when the file has no
-    ``# robot:`` line. Raises :class:`RecordingError` naming line and column."""
+    ``# robot:`` line. Raises :class:`RecordingError` naming line and column.
+
+    Bad data lines are an error here, not skipped: offline use (identification, discovery,
+    convert) must not fit a model to a file with holes it did not ask for. The whole file
+    is read first, so the error names the first bad line *and* counts all of them
+    (``line 12, column f3: 'x' is not a number (and 2 more bad lines: 40, 97)``); a live
+    replay (``iter_csv_inputs(..., on_error=...)``) skips and counts them instead.
+    """
     src = _CsvSource(path, robot_cables)
     seqs: list[int] = []
     rows: list[list[float]] = []
+    bad: list[RecordingError] = []
     try:
-        for seq, vals in src.rows():
+        for seq, vals in src.rows(on_error=bad.append):
             seqs.append(seq)
             rows.append(vals)
     finally:
         src.close()
+    if bad:
+        first = bad[0]
+        if len(bad) > 1:
+            more = ", ".join(e.location.split(",")[0].removeprefix("line ") for e in bad[1:6])
+            more += ", ..." if len(bad) > 6 else ""
+            s = "" if len(bad) == 2 else "s"
+            raise RecordingError(first.path, first.location,
+                                 f"{first.reason} (and {len(bad) - 1} more bad line{s}: {more})")
+        raise first
     n, m = len(rows), src.n_cables
     F = np.array(rows, dtype=np.float64).reshape(n, len(src.float_cols))
 
@@ -406,15 +563,19 @@ def read_csv(path: PathArg, *, robot_cables: Optional[int] = None) -> Recording:
     )
 
 
-def iter_csv_inputs(path: PathArg, *, robot_cables: Optional[int] = None) -> Iterator[Tick]:
-    """Stream the ticks of a CSV recording in file order (header checked before return)."""
+def iter_csv_inputs(path: PathArg, *, robot_cables: Optional[int] = None,
+                    on_error: Optional[Callable[[RecordingError], None]] = None) -> Iterator[Tick]:
+    """Stream the ticks of a CSV recording in file order (header checked before return).
+
+    A bad data line raises its :class:`RecordingError` (which ends the iteration), or, with
+    ``on_error``, is handed to it and skipped: the ticks after it still come."""
     src = _CsvSource(path, robot_cables)
-    return _iter(src)
+    return _iter(src, on_error)
 
 
-def _iter(src: _CsvSource) -> Iterator[Tick]:
+def _iter(src: _CsvSource, on_error: Optional[Callable[[RecordingError], None]]) -> Iterator[Tick]:
     try:
-        for seq, vals in src.rows():
+        for seq, vals in src.rows(on_error):
             yield src.tick(seq, vals)
     finally:
         src.close()
@@ -428,6 +589,7 @@ def read_csv_metadata(path: PathArg) -> dict[str, str]:
 
 
 __all__ = [
+    "CsvRecordingWriter",
     "POSE_COLUMNS",
     "csv_header",
     "iter_csv_inputs",

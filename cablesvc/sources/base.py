@@ -89,7 +89,7 @@ class Problem:
     stable code (``nonfinite``, ``out_of_range``, ``bad_shape``, ``bad_quaternion``,
     ``time_backwards``, ``duplicate_seq``, ``seq_backwards``, ``missing_frames``,
     ``bad_frame``, ``late_frame``, ``modbus_error``, ``torn_read``, ``recording_error``,
-    ``time_jump``, ``queue_overflow``; events: ``disconnected``, ``reconnected``, ``resync``,
+    ``time_jump``, ``queue_overflow``, ``bad_line`` (a damaged line of a CSV replay); events: ``disconnected``, ``reconnected``, ``resync``,
     ``truncated``, ``robot_mismatch``, ``time_jump``); ``message``: what and where, in words; ``kind``:
     ``"rejected"`` (an input was refused) or ``"event"`` (something happened to the link).
     """

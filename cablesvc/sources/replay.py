@@ -19,6 +19,9 @@ A file that cannot be read, a message that is broken, or a file that was cut sho
 (``truncated``: the ticks before the cut are played) becomes a :class:`Problem`, never an
 exception out of :meth:`recv`; a replay whose file ends in an error is finished after its
 good ticks (or, with ``loop``, plays them again; a pass with no tick at all finishes it).
+A damaged line of a CSV recording (cut short, garbled, ``1_000``) is rejected alone
+(``bad_line``, naming line and column, counted in :attr:`ReplaySource.bad_lines`) and the
+replay goes on with the next line.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from cablesvc.config.robot import Robot
 from cablesvc.recording import RecordingError, RecordingTruncatedWarning, iter_inputs, read_metadata
+from cablesvc.recording.csv_io import iter_csv_inputs
 from cablesvc.sources.base import Source, TickInput, TickValidator
 
 __all__ = ["ReplaySource", "ReplaySourceConfig"]
@@ -84,6 +88,8 @@ class ReplaySource(Source):
         self._dt: Optional[float] = None
         #: Ticks read from the file so far (all passes), accepted or not.
         self.ticks_read = 0
+        #: CSV lines rejected as unreadable (all passes): also ``counters.rejected["bad_line"]``.
+        self.bad_lines = 0
 
     @property
     def label(self) -> str:
@@ -96,7 +102,10 @@ class ReplaySource(Source):
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", RecordingTruncatedWarning)
-                self._it = iter_inputs(self.path, robot_cables=self.n_cables)
+                if self.path.suffix.lower() == ".csv":   # a bad line costs one tick, not the rest
+                    self._it = iter_csv_inputs(self.path, robot_cables=self.n_cables, on_error=self._bad_line)
+                else:
+                    self._it = iter_inputs(self.path, robot_cables=self.n_cables)
             self._warned(caught)
             return True
         except RecordingError as exc:
@@ -105,6 +114,12 @@ class ReplaySource(Source):
             self._report("recording_error", f"{self.path}: cannot read: {exc}")
         self._it = None
         return False
+
+    def _bad_line(self, exc: RecordingError) -> None:
+        """A CSV line that is not a tick: rejected (``bad_line``, naming line and column) and
+        counted; the replay goes on with the next line."""
+        self.bad_lines += 1
+        self._report("bad_line", str(exc))
 
     def _warned(self, caught: list[Any]) -> None:
         for w in caught:
