@@ -5,8 +5,10 @@ on generated data, plus the ``cablesvc bench boucwen --json`` output.
 The official test outputs are used here only to check the simulator with the published
 parameters (finding how the benchmark simulated), never to estimate anything."""
 
+import hashlib
 import io
 import json
+import re
 from contextlib import redirect_stdout
 from pathlib import Path
 
@@ -15,15 +17,16 @@ import pytest
 from scipy.signal import firwin, lfilter
 
 from cablesvc.identify.boucwen_benchmark import (
-    SYNTHETIC_PRESETS, IdentifyOptions, ParamSpace, estimate_noise, evaluate, generate_benchmark_data, identify,
+    DEFAULT_DATA, SYNTHETIC_PRESETS, IdentifyOptions, ParamSpace, estimate_noise, evaluate, generate_benchmark_data, identify,
     load_benchmark, rmse, simulate_test_multisine, simulate_test_sweep, simulate_train,
 )
 from cablesvc.identify.oscillator import (
     BENCHMARK_TRUTH, PARAM_NAMES, as_theta, bandlimited_upsample, decimate, decimate_fir, simulate, simulate_fine,
 )
 
-OFFICIAL = Path("/work/shared/data/boucwen")
-needs_official = pytest.mark.skipif(not (OFFICIAL / "test.h5").exists(), reason="official benchmark data not present")
+#: The official benchmark data ship with the package (cablesvc/data/boucwen): these tests
+#: always run, in a clone too (issue 18).
+OFFICIAL = DEFAULT_DATA
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +44,6 @@ def small(tmp_path_factory):
 
 # ---- the benchmark's simulation ----------------------------------------------------------
 
-@needs_official
 def test_official_multisine_test_output_reproduced(official):
     """Published parameters -> steady-state period of the official multisine test output
     to rounding level (Newmark 1/4-1/2 + trapezoidal z at 15 kHz, FFT input, decimate 2-2-5)."""
@@ -52,7 +54,6 @@ def test_official_multisine_test_output_reproduced(official):
     assert rmse(y0, official.ms_y) > 1e-6
 
 
-@needs_official
 def test_official_sweep_test_output_reproduced(official):
     """The sweep was decimated in ONE decimate(y, 20, 'fir'); the input comes from its
     samples by band-limited reconstruction. Decimating 2-2-5 like the multisines is 100
@@ -67,7 +68,6 @@ def test_official_sweep_test_output_reproduced(official):
     assert rmse(decimate(y_fine, (2, 2, 5))[0, : n - 10], ref) > 2e-7
 
 
-@needs_official
 def test_official_train_residual_is_the_noise(official):
     """With the published parameters the training residual is the stated noise (~8e-6 m
     band-limited; 7.4e-6 m measured) and matches the period-to-period noise estimate."""
@@ -218,3 +218,50 @@ def test_bench_json_output(small):
     assert out["truth"]["nu"] == 2.0
     assert out["rmse_multisine"] < 1e-6 and out["rmse_sinesweep"] < 1e-6
     assert 0 < out["seconds"] < 120
+
+
+# ---- the vendored data (issue 18: a clone stands alone) -----------------------------------
+
+def test_default_data_is_the_vendored_official_benchmark(monkeypatch):
+    """With no path and no $CABLESVC_BOUCWEN_DATA the official files are read from inside
+    the installed package, complete (train, multisine test, sine sweep test)."""
+    import cablesvc
+
+    monkeypatch.delenv("CABLESVC_BOUCWEN_DATA", raising=False)
+    d = load_benchmark()
+    assert Path(cablesvc.__file__).resolve().parent in d.path.resolve().parents
+    assert d.fs == 750.0 and d.period == 8192
+    assert d.train_u.shape == d.train_y.shape == (40960,)
+    assert d.ms_u.shape == d.ms_y.shape == (8192,)
+    assert d.sw_u.shape == d.sw_y.shape == (153000,)
+
+
+def test_vendored_files_match_the_checksums_in_their_readme():
+    """The data README records the sha256 of each file as received: a re-export, a
+    truncated copy or a Git LFS pointer in place of the data fails here."""
+    readme = (DEFAULT_DATA / "README.md").read_text()
+    sums = dict((name, h) for h, name in re.findall(r"\b([0-9a-f]{64})\s+(\S+\.h5)\b", readme))
+    assert set(sums) == {"train.h5", "test.h5"}
+    for name, h in sums.items():
+        assert hashlib.sha256((DEFAULT_DATA / name).read_bytes()).hexdigest() == h, name
+    assert "Licence" in readme and "10.4121/12967592" in readme
+
+
+@pytest.mark.parametrize("content", [None, b"not hdf5", "empty-group"], ids=["missing", "not-hdf5", "no-multisine"])
+def test_bench_bad_data_directory_is_one_line_error(tmp_path, capsys, content):
+    """``bench boucwen --data DIR`` with no/garbled/wrong train.h5: exit 1 and one line on
+    stderr naming the file, not a traceback."""
+    from cablesvc.bench.boucwen import main
+
+    if content == "empty-group":
+        import h5py
+        with h5py.File(tmp_path / "train.h5", "w") as f:
+            f.create_group("other")
+    elif content is not None:
+        (tmp_path / "train.h5").write_bytes(content)
+    rc = main(["--data", str(tmp_path), "--json"])
+    err = capsys.readouterr().err
+    assert rc == 1
+    assert len(err.strip().splitlines()) == 1, err
+    assert err.startswith("cablesvc bench boucwen: ") and str(tmp_path / "train.h5") in err
+    assert "Traceback" not in err

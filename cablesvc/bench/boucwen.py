@@ -140,9 +140,13 @@ def cmd_bench_boucwen(args) -> int:
     if not args.json:
         def progress(name, d):
             print(f"  {name}: {d['seconds']:.1f} s, objective {d['objective']:.4g}", file=sys.stderr, flush=True)
-    out = run_bench(args.data, seed=args.seed, workers=args.workers, synthetic=args.synthetic,
-                    published=args.published, particles=args.particles, iterations=args.iterations,
-                    progress=progress)
+    try:
+        out = run_bench(args.data, seed=args.seed, workers=args.workers, synthetic=args.synthetic,
+                        published=args.published, particles=args.particles, iterations=args.iterations,
+                        progress=progress)
+    except (OSError, ValueError) as e:        # missing/unreadable data, unknown preset: one line, no traceback
+        print(f"cablesvc bench boucwen: {e}", file=sys.stderr)
+        return 1
     if args.json:
         print(json.dumps(out, default=float))
     else:
@@ -157,7 +161,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--data", default=None, metavar="DIR",
                    help="directory with train.h5, test.h5 (and truth.json) (default: $CABLESVC_BOUCWEN_DATA or "
-                        "/work/shared/data/boucwen)")
+                        "the benchmark data shipped with cablesvc, cablesvc/data/boucwen)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--seed", type=int, default=0, help="seed of the swarm (and of --synthetic data)")
     p.add_argument("--workers", type=int, default=None, help="numba threads for the lanes (default: numba's)")

@@ -35,6 +35,7 @@ import math
 import os
 import time
 from dataclasses import dataclass
+from importlib.resources import files
 from pathlib import Path
 from typing import Any, Callable
 
@@ -53,7 +54,10 @@ __all__ = [
     "multisine", "sine_sweep", "generate_benchmark_data",
 ]
 
-DEFAULT_DATA = "/work/shared/data/boucwen"
+#: The benchmark's own data, shipped as package data (cablesvc/data/boucwen: train.h5,
+#: test.h5 and a README with their source and licence note; docs/references.md), so a
+#: clone or an installed wheel runs the benchmark offline.
+DEFAULT_DATA = Path(str(files("cablesvc") / "data" / "boucwen"))
 PERIOD = 8192                # samples per multisine period
 MULTISINE_FACTORS = (2, 2, 5)  # decimation of the multisines: MATLAB factor(20), one decimate() each
 SWEEP_FACTORS = (20,)          # decimation of the sine sweep: one decimate(y, 20, 'fir')
@@ -99,7 +103,7 @@ SYNTHETIC_PRESETS = {
 
 
 def data_dir(path: str | os.PathLike | None = None) -> Path:
-    """``path``, else ``$CABLESVC_BOUCWEN_DATA``, else :data:`DEFAULT_DATA`."""
+    """``path``, else ``$CABLESVC_BOUCWEN_DATA``, else :data:`DEFAULT_DATA` (the vendored data)."""
     return Path(path or os.environ.get("CABLESVC_BOUCWEN_DATA") or DEFAULT_DATA)
 
 
@@ -130,19 +134,34 @@ def _read(group, key) -> np.ndarray:
 def load_benchmark(path: str | os.PathLike | None = None, *, tests: bool = True) -> BenchmarkData:
     """Read train.h5 (and test.h5 when ``tests``) and truth.json (if any) from ``path``
     (default :func:`data_dir`). Layout: group ``multisine`` with ``u``, ``y``, ``fs`` in
-    train.h5; groups ``multisine`` and ``sinesweep`` in test.h5."""
+    train.h5; groups ``multisine`` and ``sinesweep`` in test.h5.
+    Missing or unreadable files raise a one-line FileNotFoundError / ValueError naming the
+    file (and the HDF5 object)."""
     import h5py
 
     d = data_dir(path)
-    with h5py.File(d / "train.h5", "r") as f:
-        g = f["multisine"]
-        data = BenchmarkData(train_u=_read(g, "u"), train_y=_read(g, "y"), fs=float(_read(g, "fs")[0]), path=d)
+    train = d / "train.h5"
+    if not train.is_file():
+        raise FileNotFoundError(f"{train}: no such file (the Bouc-Wen benchmark data directory is --data DIR, "
+                                f"$CABLESVC_BOUCWEN_DATA or, by default, the data shipped with cablesvc)")
+
+    def read(file: Path, fn):
+        try:
+            with h5py.File(file, "r") as f:
+                return fn(f)
+        except KeyError as e:
+            raise ValueError(f"{file}: missing HDF5 group or dataset ({e.args[0] if e.args else e})") from None
+        except OSError as e:
+            raise ValueError(f"{file}: not a readable HDF5 file ({e})") from None
+
+    data = read(train, lambda f: BenchmarkData(train_u=_read(f["multisine"], "u"), train_y=_read(f["multisine"], "y"),
+                                               fs=float(_read(f["multisine"], "fs")[0]), path=d))
     if data.train_u.size % PERIOD == 0:
         data.period = PERIOD
     if tests and (d / "test.h5").exists():
-        with h5py.File(d / "test.h5", "r") as f:
-            data.ms_u, data.ms_y = _read(f["multisine"], "u"), _read(f["multisine"], "y")
-            data.sw_u, data.sw_y = _read(f["sinesweep"], "u"), _read(f["sinesweep"], "y")
+        data.ms_u, data.ms_y, data.sw_u, data.sw_y = read(
+            d / "test.h5", lambda f: (_read(f["multisine"], "u"), _read(f["multisine"], "y"),
+                                      _read(f["sinesweep"], "u"), _read(f["sinesweep"], "y")))
     if (d / "truth.json").exists():
         t = json.loads((d / "truth.json").read_text())
         data.truth = {k: float(v) for k, v in (t.get("params", t)).items() if k in PARAM_NAMES}
