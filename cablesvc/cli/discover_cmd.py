@@ -86,7 +86,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--robot", default=None, help="robot name or .toml file")
     p.add_argument("--boucwen", action="store_true",
                    help="run discovery on the Bouc-Wen benchmark oscillator instead (linear start on train.h5)")
-    p.add_argument("--data", default=None, help="--boucwen: benchmark data directory (default ../shared/data/boucwen)")
+    p.add_argument("--data", default=None, help="--boucwen: benchmark data directory (default: "
+                   "$CABLESVC_BOUCWEN_DATA or the data shipped with cablesvc)")
     p.add_argument("--hold", action="store_true", help="--boucwen: simulate with a zero-order-hold input")
     p.add_argument("--params", default=None, help="baseline parameter file (default: the robot's nominal model)")
     p.add_argument("--report", default=None, metavar="DIR", help="write JSON, figures, params.toml and index.html")
