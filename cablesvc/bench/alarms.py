@@ -1,21 +1,35 @@
-"""``cablesvc bench alarms``: detection delay and false alarms of the drift detector.
+"""``cablesvc bench alarms``: detection delay and false alarms of the drift and spread detectors.
 
 Synthetic residuals (measured - predicted) at ``rate_hz`` (default 1 kHz) for ``n_cables``
 cables: a per-cable bias uniform in +-0.5 N (what a good model leaves, learned as the
 baseline during the warm-up) plus Gaussian sensor noise of ``noise_n`` (default 0.1 N).
-Three runs per seed, each through :meth:`DriftDetector.update_batch` (bit-identical to
-the per-tick path the daemon uses):
+Six runs per seed, each through the detectors' ``update_batch`` (bit-identical to the
+per-tick path the daemon uses):
 
-- **noise only** for ``hours`` (default one hour, 3.6 M ticks): every raise is a false alarm;
+- **noise only** for ``hours`` (default one hour, 3.6 M ticks), through drift and spread:
+  every raise is a false alarm;
 - **step**: after the warm-up and one more minute, a step of ``step_n`` (0.4 N, the
   offset of paper 002 Fig 6), positive on even cables, negative on odd ones; delay =
   time from the step to the raise on that cable;
 - **ramp**: from the same moment, an offset growing at ``ramp_n_per_h`` (0.4 N per hour),
   same signs; delay = time from the start of the ramp to the raise.
 
+- **zero-mean effects** for the spread detector, setting in at the same moment on every
+  cable, each of peak ``effect_n`` (0.3 N, 3 x the noise) over a motion of period
+  ``period_s`` (4 s; cable i phase-shifted by 2 pi i / m): a pulley friction
+  ``effect_n`` sign(v), a viscous force c v, and a dead time d of a 20 N force swing,
+  f(t) - f(t - d) (d about 9.5 ms with the defaults); delay = time from the onset to the
+  spread raise. Drift runs on the same data (it should not see them).
+
+With ``--replay MINUTES`` (:func:`run_replay_bench`) also **effect-free replays**: the
+digital twin's ``trajectory`` scenario of ipanema3 (nominal amplitude truth, sensor noise
+``noise_n``) through the live kernel with the truth's own parameters, as the daemon
+computes it, the residual of every tick into drift and spread: every raise is a false
+alarm; it also reports the largest spread / noise-floor ratio after the warm-up.
+
 It reports per scenario the median and maximum delay over all cables and seeds, the
 estimated offset at the raise (``offset_n`` of the event; for the ramp also the true
-offset at that moment) and the false alarms.
+offset at that moment), the false alarms, and the spread raises the 0.4 N step causes.
 """
 
 from __future__ import annotations
@@ -27,18 +41,24 @@ from typing import Any, Callable
 import numpy as np
 
 from cablesvc.alarms.drift import DriftConfig, DriftDetector
+from cablesvc.alarms.spread import SpreadConfig, SpreadDetector
 
 CHUNK_S = 60.0          # seconds of data generated at once
+SWING_N = 20.0          # force swing of the dead-time scenario [N]
+EFFECTS = ("friction", "viscous", "dead_time")
 
 
-def _run(det: DriftDetector, rng: np.random.Generator, bias: np.ndarray, rate: float, noise: float,
+def _run(dets, rng: np.random.Generator, bias: np.ndarray, rate: float, noise: float,
          duration_s: float, offset_fn: Callable[[np.ndarray], np.ndarray] | None, change_t: float,
          stop_when_all: bool, model_error: tuple[float, float] = (0.0, 1.0),
-         ) -> tuple[dict[int, tuple[float, float]], int, int]:
-    """Feed ``duration_s`` of residuals; returns ({cable: (raise t, offset_n)} of the first raise
-    at or after ``change_t``, raises before ``change_t``, samples processed).
-    ``model_error`` (std [N], correlation time [s]): a zero-mean Ornstein-Uhlenbeck component
-    added to the residual, standing for model error that varies slowly with the motion."""
+         ) -> tuple[list[dict[int, tuple[float, float]]], list[int], int]:
+    """Feed ``duration_s`` of residuals to every detector of ``dets`` (the same data); returns,
+    per detector, {cable: (raise t, value)} of the first raise at or after ``change_t``
+    (value: ``offset_n`` for drift, the spread for spread) and the raises before
+    ``change_t``, and the samples processed. ``stop_when_all``: stop once the first detector
+    has raised on every cable. ``model_error`` (std [N], correlation time [s]): a zero-mean
+    Ornstein-Uhlenbeck component added to the residual, standing for model error that
+    varies slowly with the motion."""
     from scipy.signal import lfilter
 
     m = bias.size
@@ -48,8 +68,8 @@ def _run(det: DriftDetector, rng: np.random.Generator, bias: np.ndarray, rate: f
     zi = (rng.standard_normal(m) * me_std * a)[None, :] if me_std > 0 else None
     n_total = int(round(duration_s * rate))
     chunk = int(CHUNK_S * rate)
-    first: dict[int, tuple[float, float]] = {}
-    early = 0
+    firsts: list[dict[int, tuple[float, float]]] = [{} for _ in dets]
+    earlies = [0] * len(dets)
     k0 = 0
     while k0 < n_total:
         n = min(chunk, n_total - k0)
@@ -62,17 +82,49 @@ def _run(det: DriftDetector, rng: np.random.Generator, bias: np.ndarray, rate: f
             R += ou
         if offset_fn is not None:
             R += offset_fn(t)
-        for ev in det.update_batch(t, R, seq=k0):
-            if ev.action != "raise":
-                continue
-            if ev.t < change_t:
-                early += 1
-            elif ev.cable not in first:
-                first[ev.cable] = (ev.t, float(ev.offset_n))
+        for j, det in enumerate(dets):
+            first = firsts[j]
+            for ev in det.update_batch(t, R, seq=k0):
+                if ev.action != "raise":
+                    continue
+                if ev.t < change_t:
+                    earlies[j] += 1
+                elif ev.cable not in first:
+                    first[ev.cable] = (ev.t, float(ev.offset_n if ev.offset_n is not None else ev.value))
         k0 += n
-        if stop_when_all and len(first) == m:
+        if stop_when_all and len(firsts[0]) == m:
             break
-    return first, early, k0 * m
+    return firsts, earlies, k0 * m
+
+
+def zero_mean_effect(kind: str, n_cables: int, size_n: float, period_s: float, onset_s: float,
+                     ) -> Callable[[np.ndarray], np.ndarray]:
+    """offset_fn (t (n,) -> (n, m) [N]) of a zero-mean effect of peak ``size_n`` from ``onset_s``
+    over a motion of period ``period_s`` (cable i phase-shifted by 2 pi i / m): ``friction``
+    size sign(v), ``viscous`` c v, ``dead_time`` f(t) - f(t - d) of a force swing
+    f = SWING_N sin(w t + phase), with d = :func:`dead_time_s`."""
+    w = 2.0 * np.pi / period_s
+    phase = 2.0 * np.pi * np.arange(n_cables) / n_cables
+    d = dead_time_s(size_n, period_s)
+
+    def fn(t: np.ndarray) -> np.ndarray:
+        x = w * t[:, None] + phase
+        if kind == "friction":
+            e = size_n * np.sign(np.cos(x))           # v = d/dt sin(x)
+        elif kind == "viscous":
+            e = size_n * np.cos(x)
+        elif kind == "dead_time":
+            e = SWING_N * (np.sin(x) - np.sin(x - w * d))
+        else:
+            raise ValueError(f"unknown effect {kind!r} (one of {', '.join(EFFECTS)})")
+        return np.where(t[:, None] >= onset_s, e, 0.0)
+    return fn
+
+
+def dead_time_s(size_n: float, period_s: float) -> float:
+    """Dead time [s] whose residual on a SWING_N sine of period ``period_s`` peaks at size_n:
+    2 SWING_N sin(w d / 2) = size_n."""
+    return 2.0 / (2.0 * np.pi / period_s) * float(np.arcsin(min(1.0, size_n / (2.0 * SWING_N))))
 
 
 def _summary(values: list[float]) -> dict[str, float | None]:
@@ -85,21 +137,25 @@ def _summary(values: list[float]) -> dict[str, float | None]:
 def run_alarm_bench(seed: int = 0, hours: float = 1.0, *, n_seeds: int = 5, n_cables: int = 8,
                     rate_hz: float = 1000.0, noise_n: float = 0.1, step_n: float = 0.4,
                     ramp_n_per_h: float = 0.4, model_error_n: float = 0.0, model_error_tau_s: float = 5.0,
-                    config: DriftConfig | None = None,
+                    effect_n: float = 0.3, period_s: float = 4.0,
+                    config: DriftConfig | None = None, spread_config: SpreadConfig | None = None,
                     progress: Callable[[str, int, int], None] | None = None) -> dict[str, Any]:
-    """Run the three scenarios for seeds ``seed .. seed + n_seeds - 1``; see the module
+    """Run the scenarios for seeds ``seed .. seed + n_seeds - 1``; see the module
     docstring. Units: s, N, Hz. Returns a JSON-able dict with ``per_seed`` rows and the
-    ``step``, ``ramp`` and ``noise`` summaries. ``model_error_n`` > 0 adds a slowly varying
-    zero-mean residual (std [N], correlation time ``model_error_tau_s`` [s]) to every run:
-    a robustness check beyond white sensor noise."""
+    ``step``, ``ramp`` and ``noise`` summaries of drift and the ``spread`` summary.
+    ``model_error_n`` > 0 adds a slowly varying zero-mean residual (std [N], correlation
+    time ``model_error_tau_s`` [s]) to every run: a robustness check beyond white sensor noise."""
     cfg = config if config is not None else DriftConfig()
-    pre_s = cfg.warmup_s + 60.0
+    scfg = spread_config if spread_config is not None else SpreadConfig()
+    pre_s = max(cfg.warmup_s, scfg.warmup_s) + 60.0
     step_max_s = 600.0
+    effect_max_s = 120.0
     ramp_max_s = 3.0 * 3600.0 * (0.4 / max(ramp_n_per_h, 1e-9))     # a generous cap
     signs = np.where(np.arange(n_cables) % 2 == 0, 1.0, -1.0)
     rows = []
     step_delays, step_offsets, ramp_delays, ramp_offsets, ramp_true = [], [], [], [], []
-    false_noise = false_pre = 0
+    false_noise = false_pre = spread_false = spread_on_step = 0
+    eff: dict[str, dict[str, list]] = {k: {"delay": [], "spread": [], "drift": [], "early": []} for k in EFFECTS}
     samples = 0
     me = (model_error_n, model_error_tau_s)
     wall0 = time.perf_counter()
@@ -107,35 +163,52 @@ def run_alarm_bench(seed: int = 0, hours: float = 1.0, *, n_seeds: int = 5, n_ca
         s = seed + j
         rng = np.random.default_rng(s)
         bias = rng.uniform(-0.5, 0.5, n_cables)
-        # noise only
+        # noise only: drift and spread on the same data
         if progress:
             progress("noise", j, n_seeds)
-        det = DriftDetector(n_cables, cfg)
-        first, early, ns = _run(det, rng, bias, rate_hz, noise_n, hours * 3600.0, None, float("inf"), False, me)
+        (_, _), (early, early_sp), ns = _run([DriftDetector(n_cables, cfg), SpreadDetector(n_cables, scfg)], rng,
+                                             bias, rate_hz, noise_n, hours * 3600.0, None, float("inf"), False, me)
         n_false = early
         samples += ns
-        # step
+        # step (spread runs beside drift: how often a step of the mean also raises spread)
         if progress:
             progress("step", j, n_seeds)
-        det = DriftDetector(n_cables, cfg)
-        fs, early_s, ns = _run(det, rng, bias, rate_hz, noise_n, pre_s + step_max_s,
-                               lambda t: np.where(t[:, None] >= pre_s, step_n * signs, 0.0), pre_s, True, me)
+        (fs, fs_sp), (early_s, _), ns = _run(
+            [DriftDetector(n_cables, cfg), SpreadDetector(n_cables, scfg)], rng, bias, rate_hz, noise_n,
+            pre_s + step_max_s, lambda t: np.where(t[:, None] >= pre_s, step_n * signs, 0.0), pre_s, True, me)
         samples += ns
         sd = [fs[i][0] - pre_s for i in sorted(fs)]
         so = [fs[i][1] * signs[i] for i in sorted(fs)]
         # ramp
         if progress:
             progress("ramp", j, n_seeds)
-        det = DriftDetector(n_cables, cfg)
         rate_s = ramp_n_per_h / 3600.0
-        fr, early_r, ns = _run(det, rng, bias, rate_hz, noise_n, pre_s + ramp_max_s,
-                               lambda t: np.maximum(t[:, None] - pre_s, 0.0) * rate_s * signs, pre_s, True, me)
+        (fr,), (early_r,), ns = _run([DriftDetector(n_cables, cfg)], rng, bias, rate_hz, noise_n, pre_s + ramp_max_s,
+                                     lambda t: np.maximum(t[:, None] - pre_s, 0.0) * rate_s * signs, pre_s, True, me)
         samples += ns
         rd = [fr[i][0] - pre_s for i in sorted(fr)]
         ro = [fr[i][1] * signs[i] for i in sorted(fr)]
         rt = [(fr[i][0] - pre_s) * rate_s for i in sorted(fr)]
+        # zero-mean effects: spread first (it should raise), drift on the same data
+        row_eff = {}
+        for kind in EFFECTS:
+            if progress:
+                progress(kind, j, n_seeds)
+            (fe, fe_dr), (early_e, early_ed), ns = _run(
+                [SpreadDetector(n_cables, scfg), DriftDetector(n_cables, cfg)], rng, bias, rate_hz, noise_n,
+                pre_s + effect_max_s, zero_mean_effect(kind, n_cables, effect_n, period_s, pre_s), pre_s, True, me)
+            samples += ns
+            ed = [fe[i][0] - pre_s for i in sorted(fe)]
+            e = eff[kind]
+            e["delay"] += ed
+            e["spread"] += [fe[i][1] for i in sorted(fe)]
+            e["drift"].append(len(fe_dr))
+            e["early"].append(early_e + early_ed)
+            row_eff[kind] = {"detected": len(fe), "delay_s": _summary(ed), "drift_raised": len(fe_dr)}
         false_noise += n_false
         false_pre += early_s + early_r
+        spread_false += early_sp
+        spread_on_step += len(fs_sp)
         step_delays += sd
         step_offsets += so
         ramp_delays += rd
@@ -145,25 +218,104 @@ def run_alarm_bench(seed: int = 0, hours: float = 1.0, *, n_seeds: int = 5, n_ca
             "seed": s, "false_alarms_noise": n_false, "false_alarms_before_change": early_s + early_r,
             "step_detected": len(fs), "step_delay_s": _summary(sd), "step_offset_n": _summary(so),
             "ramp_detected": len(fr), "ramp_delay_s": _summary(rd), "ramp_offset_n": _summary(ro),
+            "spread_false_alarms_noise": early_sp, "spread_raised_on_step": len(fs_sp), "spread_effects": row_eff,
         })
     wall = time.perf_counter() - wall0
     n_total = n_cables * n_seeds
+    cable_hours = n_total * hours
     return {
         "config": cfg.model_dump(),
+        "spread_config": scfg.model_dump(),
         "setup": {"seeds": list(range(seed, seed + n_seeds)), "cables": n_cables, "rate_hz": rate_hz,
                   "noise_n": noise_n, "hours_noise_only": hours, "step_n": step_n, "ramp_n_per_h": ramp_n_per_h,
                   "change_at_s": pre_s, "bias": "uniform +-0.5 N per cable",
-                  "model_error_n": model_error_n, "model_error_tau_s": model_error_tau_s},
+                  "model_error_n": model_error_n, "model_error_tau_s": model_error_tau_s,
+                  "effect_n": effect_n, "period_s": period_s, "dead_time_s": dead_time_s(effect_n, period_s),
+                  "dead_time_swing_n": SWING_N, "effect_window_s": effect_max_s},
         "noise": {"ticks_per_seed": int(round(hours * 3600.0 * rate_hz)), "false_alarms": false_noise,
                   "false_alarms_before_change": false_pre},
         "step": {"detected": len(step_delays), "of": n_total, "delay_s": _summary(step_delays),
                  "offset_n": _summary(step_offsets)},
         "ramp": {"detected": len(ramp_delays), "of": n_total, "delay_s": _summary(ramp_delays),
                  "offset_n": _summary(ramp_offsets), "true_offset_at_raise_n": _summary(ramp_true)},
+        "spread": {
+            "noise": {"cable_hours": cable_hours, "false_alarms": spread_false,
+                      "false_alarms_per_cable_hour": spread_false / cable_hours if cable_hours > 0 else None},
+            "raised_on_step": {"raised": spread_on_step, "of": n_total},
+            "effects": {k: {"detected": len(e["delay"]), "of": n_total, "detection_rate": len(e["delay"]) / n_total,
+                            "delay_s": _summary(e["delay"]), "spread_at_raise_n": _summary(e["spread"]),
+                            "drift_raised": int(sum(e["drift"])), "raises_before_onset": int(sum(e["early"]))}
+                        for k, e in eff.items()},
+        },
         "per_seed": rows,
         "samples": samples,
         "wall_s": wall,
         "samples_per_s": samples / wall if wall > 0 else None,
+    }
+
+
+def run_replay_bench(minutes: float = 30.0, *, robot: str = "ipanema3", rate_hz: float = 1000.0, seed: int = 0,
+                     noise_n: float = 0.1, chunk_s: float = 300.0, config: DriftConfig | None = None,
+                     spread_config: SpreadConfig | None = None,
+                     progress: Callable[[str, int, int], None] | None = None) -> dict[str, Any]:
+    """Effect-free replays (see the module docstring) of ``minutes`` at ``rate_hz``, simulated
+    in chunks of ``chunk_s`` seconds (seeds ``seed``, ``seed + 1``, ...; each chunk through a
+    fresh kernel, like its fresh truth model), the detectors running on across the chunks
+    with the time continued. Returns a JSON-able dict."""
+    from cablesvc.kernel import Predictor
+    from cablesvc.simulate.physics import TruthConfig
+    from cablesvc.simulate.twin import simulate_twin
+
+    cfg = config if config is not None else DriftConfig()
+    scfg = spread_config if spread_config is not None else SpreadConfig()
+    total_s = minutes * 60.0
+    n_chunks = max(1, int(np.ceil(total_s / chunk_s - 1e-9)))
+    drift = spread = None
+    events: list = []
+    ratio_max = 0.0
+    ticks = 0
+    sim_s = kernel_s = 0.0
+    for c in range(n_chunks):
+        if progress:
+            progress("replay", c, n_chunks)
+        dur = min(chunk_s, total_s - c * chunk_s)
+        w0 = time.perf_counter()
+        run = simulate_twin(robot, "trajectory", truth=TruthConfig(noise_std=noise_n), duration=dur, rate=rate_hz,
+                            seed=seed + c)
+        w1 = time.perf_counter()
+        rec, geom = run.recording, run.truth.geom
+        m = geom.n_cables
+        if drift is None:
+            drift, spread = DriftDetector(m, cfg, geom.cable_names), SpreadDetector(m, scfg, geom.cable_names)
+        pred = Predictor(geom, run.truth.params)
+        n = rec.t.size
+        R = np.empty((n, m))
+        for k in range(n):
+            R[k] = pred.tick(rec.t[k], rec.motor_length[k], rec.position[k], rec.orientation[k], rec.force[k]).residual
+        sim_s += w1 - w0
+        kernel_s += time.perf_counter() - w1
+        t = rec.t + c * chunk_s
+        per_s = int(round(rate_hz))                    # one-second blocks: read the ratio after each
+        for k0 in range(0, n, per_s):
+            events += drift.update_batch(t[k0:k0 + per_s], R[k0:k0 + per_s], seq=ticks + k0)
+            events += spread.update_batch(t[k0:k0 + per_s], R[k0:k0 + per_s], seq=ticks + k0)
+            if spread.ready.all():
+                ratio_max = max(ratio_max, float(np.max(spread.ratio)))
+        ticks += n
+    m = drift.n_cables
+    raised = [e for e in events if e.action == "raise"]
+    return {
+        "setup": {"robot": robot, "scenario": "trajectory", "minutes": minutes, "rate_hz": rate_hz, "cables": m,
+                  "noise_n": noise_n, "chunk_s": chunk_s, "seeds": list(range(seed, seed + n_chunks)),
+                  "kernel_params": "the truth's own (nominal amplitude)"},
+        "ticks": ticks,
+        "cable_hours": m * total_s / 3600.0,
+        "false_alarms": {"drift": sum(e.code == "drift" for e in raised), "spread": sum(e.code == "spread" for e in raised)},
+        "spread_ratio_max": ratio_max,
+        "spread_raise_ratio": scfg.raise_ratio,
+        "events": [e.payload() for e in raised[:20]],
+        "simulate_s": sim_s,
+        "kernel_s": kernel_s,
     }
 
 
@@ -173,9 +325,12 @@ def cmd_bench_alarms(args) -> int:
     """Handler of ``cablesvc bench alarms``."""
     kw = dict(n_seeds=args.seeds, n_cables=args.cables, rate_hz=args.rate, noise_n=args.noise,
               step_n=args.step, ramp_n_per_h=args.ramp, model_error_n=args.model_error,
-              model_error_tau_s=args.model_error_tau)
+              model_error_tau_s=args.model_error_tau, effect_n=args.effect, period_s=args.period)
     if args.json:
-        print(json.dumps(run_alarm_bench(args.seed, args.hours, **kw)))
+        res = run_alarm_bench(args.seed, args.hours, **kw)
+        if args.replay > 0:
+            res["replay"] = run_replay_bench(args.replay, rate_hz=args.rate, seed=args.seed, noise_n=args.noise)
+        print(json.dumps(res))
         return 0
     from rich.console import Console
     from rich.progress import Progress
@@ -183,10 +338,11 @@ def cmd_bench_alarms(args) -> int:
 
     con = Console()
     with Progress(console=con, transient=True) as prog:
-        task = prog.add_task("alarms", total=3 * args.seeds)
+        kinds = ("noise", "step", "ramp") + EFFECTS
+        task = prog.add_task("alarms", total=len(kinds) * args.seeds)
 
         def cb(kind, j, n):
-            prog.update(task, completed=3 * j + ("noise", "step", "ramp").index(kind),
+            prog.update(task, completed=len(kinds) * j + kinds.index(kind),
                         description=f"seed {args.seed + j}: {kind}")
         res = run_alarm_bench(args.seed, args.hours, progress=cb, **kw)
     su = res["setup"]
@@ -206,6 +362,34 @@ def cmd_bench_alarms(args) -> int:
     tb.add_row(f"noise {su['hours_noise_only']:g} h", "-", "-", "-", "-",
                f"{no['false_alarms'] + no['false_alarms_before_change']}")
     con.print(tb)
+    sp = res["spread"]
+    tb = Table(title=(f"spread detector: zero-mean effects of peak {su['effect_n']:g} N over a {su['period_s']:g} s "
+                      f"motion (dead time {su['dead_time_s'] * 1e3:.1f} ms of a {su['dead_time_swing_n']:g} N swing)"))
+    for c in ("scenario", "raised", "delay s (med)", "delay s (max)", "spread N (med)", "drift raised",
+              "false alarms"):
+        tb.add_column(c, justify="right")
+    for kind, e in sp["effects"].items():
+        tb.add_row(kind.replace("_", " "), f"{e['detected']}/{e['of']}", f(e["delay_s"]["median"], "{:.2f}"),
+                   f(e["delay_s"]["max"], "{:.2f}"), f(e["spread_at_raise_n"]["median"], "{:.3f}"),
+                   f"{e['drift_raised']}/{e['of']}", f"{e['raises_before_onset']}")
+    tb.add_row(f"step {su['step_n']:g} N (drift's)", f"{sp['raised_on_step']['raised']}/{sp['raised_on_step']['of']}",
+               "-", "-", "-", "-", "-")
+    no = sp["noise"]
+    tb.add_row(f"noise {su['hours_noise_only']:g} h", "-", "-", "-", "-", "-",
+               f"{no['false_alarms']} in {no['cable_hours']:g} cable-hours")
+    con.print(tb)
+    if args.replay > 0:
+        with Progress(console=con, transient=True) as prog:
+            task = prog.add_task("replay", total=1)
+
+            def cb2(kind, j, n):
+                prog.update(task, total=n, completed=j, description=f"effect-free replay: chunk {j + 1}/{n}")
+            rp = run_replay_bench(args.replay, rate_hz=args.rate, seed=args.seed, noise_n=args.noise, progress=cb2)
+        su2 = rp["setup"]
+        con.print(f"effect-free replay ({su2['robot']} {su2['scenario']}, {su2['minutes']:g} min at "
+                  f"{su2['rate_hz']:g} Hz, {rp['ticks']} ticks, {rp['cable_hours']:g} cable-hours, live kernel): "
+                  f"false alarms drift {rp['false_alarms']['drift']}, spread {rp['false_alarms']['spread']}; "
+                  f"largest spread / noise floor {rp['spread_ratio_max']:.3f} (raise at {rp['spread_raise_ratio']:g})")
     con.print(f"{res['samples'] / 1e6:.1f} M samples in {res['wall_s']:.1f} s "
               f"({res['samples_per_s'] / 1e6:.1f} M samples/s, data generation included)")
     return 0
@@ -214,7 +398,7 @@ def cmd_bench_alarms(args) -> int:
 def add_parser(subparsers) -> Any:
     """Register ``alarms`` on the ``cablesvc bench`` subparsers; returns the parser."""
     p = subparsers.add_parser(
-        "alarms", help="drift detector: step / ramp detection delay, false alarms in an hour of noise",
+        "alarms", help="drift and spread detectors: detection delay, false alarms in hours of noise",
         description=__doc__.split("\n\n", 1)[1] if __doc__ else None)
     p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     p.add_argument("--seeds", type=int, default=5, help="number of seeds (default 5)")
@@ -228,6 +412,12 @@ def add_parser(subparsers) -> Any:
                    help="std in N of a slowly varying zero-mean model error added to the residual (default 0)")
     p.add_argument("--model-error-tau", type=float, default=5.0,
                    help="correlation time in s of that model error (default 5)")
+    p.add_argument("--effect", type=float, default=0.3,
+                   help="peak of the zero-mean effects of the spread rows in N (default 0.3)")
+    p.add_argument("--period", type=float, default=4.0, help="period of the motion in s (default 4)")
+    p.add_argument("--replay", type=float, default=0.0, metavar="MINUTES",
+                   help="also replay MINUTES of an effect-free simulated recording through the live kernel and "
+                        "count the false alarms (default 0: off; 30 min at 1 kHz take several minutes)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_bench_alarms)
     return p
