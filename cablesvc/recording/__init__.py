@@ -1,4 +1,4 @@
-"""Recording format 1 (``/work/shared/spec/recording-format.md``): MCAP and CSV.
+"""Recording format 1 (specified in ``docs/recording-format.md``): MCAP and CSV.
 
 ``read_recording`` / ``write_recording`` dispatch on the file suffix; ``iter_inputs``
 streams ticks; ``McapRecordingWriter`` writes a live recording tick by tick (plus the

@@ -1,4 +1,4 @@
-"""Recording format, version 1 (``/work/shared/spec/recording-format.md``).
+"""Recording format, version 1 (specified in ``docs/recording-format.md``).
 
 A recording holds what a cable robot's controller saw, one record per control tick. This
 module holds what both file formats share: the names and JSON schemas of the MCAP topics,
