@@ -1,6 +1,13 @@
 """``cablesvc bench discover``: does discovery name physics it is not told about?
 
-Each case is a short simulated recording (``trajectory`` scenario of ipanema3, 30 s at
+Two modes. **Realistic** (the default, :func:`run_realistic`): the cases of
+:mod:`cablesvc.bench.discover_cases`, recordings of a second simulator whose cable law is
+outside the baseline family, forces balanced on the platform, a baseline identified from a
+simulated 002 Sec 4 calibration of the same robot (a fleet of ``--fleet`` robots, each
+calibrated once), and out-of-library cases. **Ideal** (``--ideal``, :func:`run_bench`,
+unchanged): the twin's own truth model is the baseline, described next.
+
+Each ideal case is a short simulated recording (``trajectory`` scenario of ipanema3, 30 s at
 100 Hz, sensor noise 0.1 N) from the digital twin with the nominal amplitude model as its
 base and
 
@@ -23,7 +30,15 @@ case when they are exactly both effects; a control is a false finding when anyth
 named. The RMSE reduction is the drop of the test-block RMS residual over the affected
 cables. ``--json`` prints the keys ``cases``, ``single_correct``, ``single_total``,
 ``pair_correct``, ``pair_total``, ``control_false``, ``control_total``,
-``median_rmse_reduction`` (plus ``confusion``, ``per_case`` and ``seconds``).
+``median_rmse_reduction`` (plus ``confusion``, ``per_case`` and ``seconds``), and
+``mode``, ``ool_total``, ``ool_unexplained`` (0 in ideal mode).
+
+Realistic scoring: single and pair cases as above (named terms = the findings;
+what discovery reports about the baseline itself, recalibration or model form, is not a
+named term); a control is a false finding when any term is named; an out-of-library case
+is handled when discovery reports an unexplained residual (its ``unexplained`` list is
+not empty) or names exactly one term, on the effect's cables only. The RMSE reduction is
+over the cables the effects were put on (test blocks).
 """
 
 from __future__ import annotations
@@ -42,7 +57,7 @@ import numpy as np
 from cablesvc.simulate import EFFECTS, TruthConfig, simulate_twin
 from cablesvc.simulate.physics import Effect
 
-__all__ = ["run_bench", "make_case", "add_parser", "main", "NOISE", "ROBOT", "SCENARIO"]
+__all__ = ["run_bench", "run_realistic", "make_case", "add_parser", "main", "NOISE", "ROBOT", "SCENARIO"]
 
 NOISE = 0.1          # sensor noise [N]
 ROBOT = "ipanema3"
@@ -160,6 +175,95 @@ def run_bench(cases: int = 40, seed: int = 0, progress: Optional[Any] = None) ->
         "median_rmse_reduction": float(np.median(reds)) if reds else None,
         "confusion": conf, "labels": labels, "per_case": per_case,
         "seconds": time.perf_counter() - t0, "seed": seed,
+        "mode": "ideal", "ool_total": 0, "ool_unexplained": 0,
+    }
+
+
+def _ool_ok(findings: list[Any], unexplained: list[Any], cables: list[int]) -> bool:
+    """An out-of-library case is handled: an unexplained residual is reported, or exactly
+    one term is named and only on the effect's cables."""
+    if unexplained:
+        return True
+    if len(findings) != 1:
+        return False
+    fc = set(getattr(findings[0], "cables", []) or [])
+    return bool(fc) and fc <= set(cables)
+
+
+def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Optional[Any] = None) -> dict[str, Any]:
+    """Realistic bench: the plan of :func:`cablesvc.bench.discover_cases.case_plan` (``cases``
+    singles, pairs and controls, ``cases // 2`` out-of-library cases) on ``fleet`` robots."""
+    from cablesvc.bench.discover_cases import NOISE as RN, case_plan, calibrated_robot, make_realistic_case
+    from cablesvc.discover import discover
+    t0 = time.perf_counter()
+    plan = case_plan(cases, seed, fleet)
+    per_case = []
+    conf: dict[str, dict[str, int]] = {}
+    split = {"simulate": 0.0, "identify": 0.0, "discover": 0.0}
+    robots = {}
+    for spec in plan:
+        sr = calibrated_robot(spec.robot_index, seed)
+        if (spec.robot_index, seed) not in robots:      # calibrated once, its cost counted once
+            robots[(spec.robot_index, seed)] = sr
+            split["simulate"] += sr.seconds["simulate"]
+            split["identify"] += sr.seconds["identify"]
+        case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
+                                   rng=np.random.default_rng([seed, 7, spec.index]))
+        split["simulate"] += case.seconds["simulate"]
+        t1 = time.perf_counter()
+        d = discover(case.recording, sr.robot, case.baseline)
+        td = time.perf_counter() - t1
+        split["discover"] += td
+        findings = list(getattr(d, "findings", []) or [])
+        unexplained = list(getattr(d, "unexplained", []) or [])
+        named = sorted({f.term for f in findings})
+        truth = sorted(spec.names)
+        affected = case.truth["cables"]
+        red = d.reduction(affected) if affected else None
+        if spec.kind == "ool":
+            ok = _ool_ok(findings, unexplained, affected)
+        else:
+            ok = named == truth
+        row = conf.setdefault("+".join(truth) if truth else "none", {})
+        for n in (named or ["nothing"]):
+            row[n] = row.get(n, 0) + 1
+        if unexplained:
+            row["unexplained"] = row.get("unexplained", 0) + 1
+        rb = np.asarray(getattr(d, "rmse_before", []), float)
+        per_case.append({"kind": spec.kind, "seed": spec.seed, "robot": spec.robot_index,
+                         "truth": [e.describe() for e in case.effects], "truth_cables": affected,
+                         "effect_rms": case.effect_rms, "named": {f.term: list(f.cables) for f in findings},
+                         "unexplained": [{"cables": list(u.get("cables", []))} if isinstance(u, dict) else str(u)
+                                         for u in unexplained],
+                         "correct": ok, "both_named": set(truth) <= set(named), "rmse_reduction": red,
+                         "baseline_rmse_over_noise": (rb / RN).tolist() if rb.size else None,
+                         "wrench_rms": case.wrench, "seconds": {"simulate": case.seconds["simulate"],
+                                                                "discover": td}})
+        if progress:
+            progress(len(per_case), len(plan), f"{spec.kind} {truth} -> {named}"
+                     + (" + unexplained" if unexplained else ""))
+    sing = [c for c in per_case if c["kind"] == "single"]
+    pair = [c for c in per_case if c["kind"] == "pair"]
+    ctrl = [c for c in per_case if c["kind"] == "control"]
+    ool = [c for c in per_case if c["kind"] == "ool"]
+    reds = [c["rmse_reduction"] for c in per_case if c["rmse_reduction"] is not None]
+    ctrl_b = [float(np.sqrt(np.mean(np.square(c["baseline_rmse_over_noise"])))) for c in ctrl
+              if c["baseline_rmse_over_noise"]]
+    n = max(1, len(per_case))
+    return {
+        "cases": len(per_case), "mode": "realistic",
+        "single_correct": sum(c["correct"] for c in sing), "single_total": len(sing),
+        "pair_correct": sum(c["correct"] for c in pair), "pair_total": len(pair),
+        "pair_both_named": sum(c["both_named"] for c in pair),
+        "control_false": sum(not c["correct"] for c in ctrl), "control_total": len(ctrl),
+        "ool_total": len(ool), "ool_unexplained": sum(c["correct"] for c in ool),
+        "ool_reported_unexplained": sum(bool(c["unexplained"]) for c in ool),
+        "median_rmse_reduction": float(np.median(reds)) if reds else None,
+        "control_baseline_rms_over_noise": float(np.median(ctrl_b)) if ctrl_b else None,
+        "confusion": conf, "labels": sorted(conf), "per_case": per_case,
+        "fleet": len(robots), "seconds_split": split,
+        "seconds_per_case": {k: v / n for k, v in split.items()},
+        "seconds": time.perf_counter() - t0, "seed": seed,
     }
 
 
@@ -180,17 +284,61 @@ def format_confusion(res: dict[str, Any]) -> str:
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("discover", help="discovery on simulated recordings with concealed effects",
                               description=__doc__.split("\n\n")[0])
-    p.add_argument("--cases", type=int, default=40, help="single-effect cases (pairs and controls: half as many)")
+    p.add_argument("--cases", type=int, default=40,
+                   help="single-effect cases; realistic: as many pairs and controls and half as many "
+                        "out-of-library cases; --ideal: half as many pairs and controls")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--ideal", action="store_true",
+                   help="the ideal bench: the twin's own truth model is the baseline (no calibration)")
+    p.add_argument("--fleet", type=int, default=4, help="realistic: simulated robots, each calibrated once")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=main)
     return p
+
+
+def _main_realistic(args) -> int:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    con = Console(stderr=True)
+    with Progress(TextColumn("[bold]realistic"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  TextColumn("{task.description}"), console=con, disable=args.json) as bar:
+        task = bar.add_task("calibrating the first robot", total=None)
+
+        def prog(i: int, n: int, text: str) -> None:
+            bar.update(task, total=n, completed=i, description=text)
+
+        res = run_realistic(args.cases, args.seed, args.fleet, progress=prog)
+    if args.json:
+        print(json.dumps(res, indent=1, default=float))
+        return 0
+    pct = lambda a, b: f"{a}/{b}" + (f" ({a / b:.0%})" if b else "")
+    print(format_confusion(res))
+    print(f"single effect named correctly:      {pct(res['single_correct'], res['single_total'])}")
+    print(f"both effects named (exactly):       {pct(res['pair_correct'], res['pair_total'])} "
+          f"(both among those named: {res['pair_both_named']})")
+    print(f"false findings in controls:         {pct(res['control_false'], res['control_total'])}")
+    print(f"out-of-library handled:             {pct(res['ool_unexplained'], res['ool_total'])} "
+          f"(unexplained residual reported: {res['ool_reported_unexplained']})")
+    mr = res["median_rmse_reduction"]
+    print("median held-out RMSE reduction on affected cables: " + ("-" if mr is None else f"{mr:.1%}"))
+    cb = res["control_baseline_rms_over_noise"]
+    if cb is not None:
+        print(f"identified baseline on controls: test RMS residual {cb:.1f} x the noise (median)")
+    sp = res["seconds_per_case"]
+    print(f"{res['cases']} cases on {res['fleet']} robots in {res['seconds']:.0f} s; per case: simulate "
+          f"{sp['simulate']:.2f} s, identify {sp['identify']:.2f} s, discover {sp['discover']:.2f} s")
+    return 0
 
 
 def main(args) -> int:
     if args.cases < 1:
         print("--cases must be >= 1", file=sys.stderr)
         return 2
+    if getattr(args, "fleet", 1) < 1:
+        print("--fleet must be >= 1", file=sys.stderr)
+        return 2
+    if not getattr(args, "ideal", False):
+        return _main_realistic(args)
     prog = None if args.json else (lambda i, n, text: print(f"[{i}/{n}] {text}", file=sys.stderr, flush=True))
     res = run_bench(args.cases, args.seed, progress=prog)
     if args.json:

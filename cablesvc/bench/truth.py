@@ -69,10 +69,11 @@ import numpy as np
 from cablesvc.config.robot import RobotGeometry
 from cablesvc.kinematics import inverse_kinematics, platform_wrench, structure_matrix
 from cablesvc.kinematics.rotation import quat_multiply, rotvec_to_quat
-from cablesvc.simulate.physics import Effect, RunInfo, TickState
+from cablesvc.simulate.physics import Effect, RunInfo, TickState, Viscous
 
 __all__ = ["CableVariant", "OOL_EFFECTS", "Eccentricity", "AnchorShift", "MountCompliance", "OolEffect",
-           "EquilibriumRun", "cable_law", "draw_variant", "equilibrium_run", "run_cable_truth", "wrench_rows"]
+           "EquilibriumRun", "apply_effects", "backbone_force", "cable_law", "draw_variant", "equilibrium_run", "solve_ik",
+           "wrench_rows"]
 
 JENKINS = 4          # Jenkins elements per cable
 X_REF = 0.025        # m: elongation at which the backbone's stiffening g is defined
@@ -153,64 +154,217 @@ def draw_variant(k: np.ndarray, rng: np.random.Generator) -> CableVariant:
                         alpha=alpha, t_env=t_env, jk=jk, jr=jr, km=km, tau=tau)
 
 
+V0 = 1e-5            # m/s: below this speed the damping is linear in v (regularises sgn(v) |v|^alpha)
+
+
 @numba.njit(cache=True)
-def _law(x, dt, kind, sk, c, xs, beta, a_sat, alpha, t_env, jk, jr, km, tau):   # pragma: no cover - compiled
+def _backbone(xv, kind, sk, c, xs):
+    """The backbone F_bb(x) [N] of the module docstring (exp: kind 0, tanh: kind 1)."""
+    u = xv / xs
+    if kind == 0:
+        return sk * (xv + c * xs * (math.exp(u) - 1.0 - u))
+    au = abs(u)
+    return sk * (xv + c * xs * (au + math.log1p(math.exp(-2.0 * au)) - math.log(2.0)))   # ln cosh u, stable
+
+
+@numba.njit(cache=True)
+def _backbone_array(x, kind, sk, c, xs):
     N, m = x.shape
-    J = jk.shape[1]
+    out = np.empty((N, m))
+    for n in range(N):
+        for i in range(m):
+            out[n, i] = _backbone(x[n, i], kind, sk[i], c[i], xs[i])
+    return out
+
+
+def backbone_force(variant: "CableVariant", x: np.ndarray) -> np.ndarray:
+    """The law's backbone (elastic, rate-independent) force F_bb(x) (N, m) [N]."""
+    return _backbone_array(np.ascontiguousarray(x, dtype=np.float64), 0 if variant.backbone == "exp" else 1,
+                           variant.scale * variant.k, variant.c, variant.x_s)
+
+
+@numba.njit(cache=True)
+def _step(xv, dx, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk, jr, km, a, b, hi, lo, ve, z, y, zout):
+    """One tick of one cable's law (pragma: compiled). Returns (F, hi, lo, ve, y); the new
+    Jenkins states go to ``zout``. See the module docstring for the law."""
+    fb = _backbone(xv, kind, sk, c, xs)
+    # running envelope: the peak-to-peak of x, its gap shrinking with time constant t_env,
+    # and the peak speed, decaying alike
+    gap = hi - lo
+    hi = max(xv, hi - 0.5 * gap * shrink)
+    lo = min(xv, lo + 0.5 * gap * shrink)
+    v = dx / dt
+    ve = max(abs(v), ve * (1.0 - shrink), 1e-6)
+    ae = max(0.5 * (hi - lo), 1e-6)
+    h = beta * sk * asat * math.tanh(ae / asat)
+    av = abs(v)
+    if av >= V0:
+        fd = h * (av / ve) ** alpha * (1.0 if v > 0 else -1.0)
+    else:
+        fd = h * (V0 / ve) ** alpha * v / V0
+    s = 0.0
+    for j in range(jk.size):
+        zz = z[j] + dx
+        r = jr[j]
+        if zz > r:
+            zz = r
+        elif zz < -r:
+            zz = -r
+        zout[j] = zz
+        s += jk[j] * zz
+    y = a * y + b * dx
+    return fb + fd + s + km * y, hi, lo, ve, y
+
+
+@numba.njit(cache=True)
+def _law(x, dt, kind, sk, c, xs, beta, asat, alpha, t_env, jk, jr, km, tau):   # pragma: no cover - compiled
+    N, m = x.shape
     out = np.empty((N, m))
     for i in range(m):
         a = math.exp(-dt / tau[i])
         b = tau[i] / dt * (1.0 - a)
         shrink = dt / t_env[i]
-        z = np.zeros(J)
+        z = np.zeros(jk.shape[1])
         y = 0.0
         hi = x[0, i]
         lo = x[0, i]
         ve = 1e-6
         for n in range(N):
-            xv = x[n, i]
-            u = xv / xs[i]
-            if kind == 0:
-                fb = sk[i] * (xv + c[i] * xs[i] * (math.exp(u) - 1.0 - u))
-            else:
-                au = abs(u)
-                lc = au + math.log1p(math.exp(-2.0 * au)) - math.log(2.0)    # ln cosh(u), stable
-                fb = sk[i] * (xv + c[i] * xs[i] * lc)
-            dx = 0.0 if n == 0 else xv - x[n - 1, i]
-            # running envelope: peak-to-peak of x whose gap shrinks with time constant t_env,
-            # and the peak speed, decaying alike
-            gap = hi - lo
-            hi = max(xv, hi - 0.5 * gap * shrink)
-            lo = min(xv, lo + 0.5 * gap * shrink)
-            v = dx / dt
-            ve = max(abs(v), ve * (1.0 - shrink), 1e-6)
-            ae = max(0.5 * (hi - lo), 1e-6)
-            h = beta[i] * sk[i] * a_sat[i] * math.tanh(ae / a_sat[i])
-            fd = 0.0
-            if v != 0.0:
-                fd = h * (abs(v) / ve) ** alpha[i] * (1.0 if v > 0 else -1.0)
-            s = 0.0
-            for j in range(J):
-                zz = z[j] + dx
-                r = jr[i, j]
-                if zz > r:
-                    zz = r
-                elif zz < -r:
-                    zz = -r
-                z[j] = zz
-                s += jk[i, j] * zz
-            y = a * y + b * dx
-            out[n, i] = fb + fd + s + km[i] * y
+            dx = 0.0 if n == 0 else x[n, i] - x[n - 1, i]
+            f, hi, lo, ve, y = _step(x[n, i], dx, dt, kind, sk[i], c[i], xs[i], beta[i], asat[i], alpha[i], shrink,
+                                     jk[i], jr[i], km[i], a, b, hi, lo, ve, z, y, z)
+            out[n, i] = f
     return out
+
+
+@numba.njit(cache=True)
+def _eval(n, q, x0, AT, w, e, cv, rows, xprev, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk, jr, km, aa,
+          bb, hi, lo, ve, z, y, zt, x, f, D):                              # pragma: no cover - compiled
+    """Residual A^T (F + e) + w on ``rows`` at tick n for pose correction q; the law's
+    forces go to f and their tangent dF/dx to D (central differences)."""
+    m = x.size
+    for i in range(m):
+        s = 0.0
+        for j in range(6):
+            s += AT[n, j, i] * q[j]
+        x[i] = x0[n, i] - s
+    hd = 1e-9 if n > 0 else 0.0             # the first tick has no motion: no rate terms
+    for i in range(m):
+        dx = 0.0 if n == 0 else x[i] - xprev[i]
+        f[i] = _step(x[i], dx, dt, kind, sk[i], c[i], xs[i], beta[i], asat[i], alpha[i], shrink[i], jk[i], jr[i],
+                     km[i], aa[i], bb[i], hi[i], lo[i], ve[i], z[i], y[i], zt)[0] + e[n, i] + cv[i] * dx / dt
+        h = 1e-9
+        fp = _step(x[i] + h, dx + hd, dt, kind, sk[i], c[i], xs[i], beta[i], asat[i], alpha[i], shrink[i], jk[i],
+                   jr[i], km[i], aa[i], bb[i], hi[i], lo[i], ve[i], z[i], y[i], zt)[0]
+        fm = _step(x[i] - h, dx - hd, dt, kind, sk[i], c[i], xs[i], beta[i], asat[i], alpha[i], shrink[i], jk[i],
+                   jr[i], km[i], aa[i], bb[i], hi[i], lo[i], ve[i], z[i], y[i], zt)[0]
+        D[i] = max((fp - fm) / (2.0 * h), 1e-3 * sk[i]) + (cv[i] / dt if n > 0 else 0.0)
+    nr = rows.size
+    R = np.zeros(nr)
+    for r in range(nr):
+        s = w[n, rows[r]]
+        for i in range(m):
+            s += AT[n, rows[r], i] * f[i]
+        R[r] = s
+    return R
+
+
+@numba.njit(cache=True)
+def _balanced(x0, AT, w, e, cv, rowmask, dt, kind, sk, c, xs, beta, asat, alpha, t_env, jk, jr, km, tau,
+              tol, max_iter):                                              # pragma: no cover - compiled
+    """Tick by tick, the pose correction dq (6,) with A^T (F(x0 - A dq) + cv dx/dt + e) + w = 0
+    on the rows in ``rowmask`` (cv (m,) [N s/m]: viscous force, solved implicitly) (Newton with backtracking, the law's tangent by central
+    differences; the law's state advances with the balanced elongation).
+    Returns dq (N,6), x (N,m), F (N,m) and the largest residual left [N]."""
+    N, m = x0.shape
+    J = jk.shape[1]
+    dq = np.zeros((N, 6))
+    xs_out = np.empty((N, m))
+    F = np.empty((N, m))
+    aa = np.empty(m)
+    bb = np.empty(m)
+    shrink = np.empty(m)
+    for i in range(m):
+        aa[i] = math.exp(-dt / tau[i])
+        bb[i] = tau[i] / dt * (1.0 - aa[i])
+        shrink[i] = dt / t_env[i]
+    z = np.zeros((m, J))
+    zt = np.zeros(J)
+    y = np.zeros(m)
+    hi = x0[0].copy()
+    lo = x0[0].copy()
+    ve = np.full(m, 1e-6)
+    xprev = x0[0].copy()
+    rows = np.nonzero(rowmask)[0]
+    nr = rows.size
+    q = np.zeros(6)
+    qt = np.zeros(6)
+    f = np.empty(m)
+    D = np.empty(m)
+    x = np.empty(m)
+    worst = 0.0
+    for n in range(N):
+        R = _eval(n, q, x0, AT, w, e, cv, rows, xprev, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk, jr, km, aa,
+                  bb, hi, lo, ve, z, y, zt, x, f, D)
+        nR = np.max(np.abs(R))
+        for it in range(max_iter):
+            if nR <= tol:
+                break
+            H = np.zeros((nr, nr))
+            for r1 in range(nr):
+                for r2 in range(nr):
+                    s = 0.0
+                    for i in range(m):
+                        s += AT[n, rows[r1], i] * D[i] * AT[n, rows[r2], i]
+                    H[r1, r2] = s
+            d = np.linalg.solve(H, R)
+            t = 1.0
+            while True:
+                for j in range(6):
+                    qt[j] = q[j]
+                for r in range(nr):
+                    qt[rows[r]] += t * d[r]
+                Rt = _eval(n, qt, x0, AT, w, e, cv, rows, xprev, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk,
+                           jr, km, aa, bb, hi, lo, ve, z, y, zt, x, f, D)
+                nRt = np.max(np.abs(Rt))
+                if nRt < nR or t < 1e-4:
+                    break
+                t *= 0.5
+            for j in range(6):
+                q[j] = qt[j]
+            R = Rt
+            nR = nRt
+        worst = max(worst, nR)
+        # advance the law's state with the balanced elongation
+        for i in range(m):
+            s = 0.0
+            for j in range(6):
+                s += AT[n, j, i] * q[j]
+            x[i] = x0[n, i] - s
+            dx = 0.0 if n == 0 else x[i] - xprev[i]
+            fi, hi[i], lo[i], ve[i], y[i] = _step(x[i], dx, dt, kind, sk[i], c[i], xs[i], beta[i], asat[i], alpha[i],
+                                                  shrink[i], jk[i], jr[i], km[i], aa[i], bb[i], hi[i], lo[i], ve[i],
+                                                  z[i], y[i], zt)
+            for j in range(J):
+                z[i, j] = zt[j]
+            F[n, i] = fi
+            xs_out[n, i] = x[i]
+            xprev[i] = x[i]
+        for j in range(6):
+            dq[n, j] = q[j]
+    return dq, xs_out, F, worst
+
+
+def _law_args(v: "CableVariant") -> tuple:
+    return (0 if v.backbone == "exp" else 1, v.scale * v.k, v.c, v.x_s, v.beta, v.a_sat, v.alpha, v.t_env,
+            np.ascontiguousarray(v.jk), np.ascontiguousarray(v.jr), v.km, v.tau)
 
 
 def cable_law(variant: CableVariant, x: np.ndarray, dt: float) -> np.ndarray:
     """Force (N, m) [N] of the variant's law over the elongation history ``x`` (N, m) [m]
     sampled every ``dt`` [s]; every element starts relaxed at x[0]."""
-    v = variant
     x = np.ascontiguousarray(x, dtype=np.float64)
-    return _law(x, float(dt), 0 if v.backbone == "exp" else 1, v.scale * v.k, v.c, v.x_s, v.beta, v.a_sat, v.alpha,
-                v.t_env, v.jk, v.jr, v.km, v.tau)
+    return _law(x, float(dt), *_law_args(variant))
 
 
 # --------------------------------------------------------------------------------------
@@ -296,7 +450,8 @@ class MountCompliance(OolEffect):
     """Two cables' pulleys share a compliant mount of compliance C [m/N]: the mount gives
     way to the pull of both, delta = -C (F_i u_i + F_j u_j) (u: unit vector from the
     platform to the frame), which shortens cable i's path by C (F_i + F_j u_i . u_j) (and
-    likewise j): each cable's force depends on the other's. magnitude = C [m/N]."""
+    likewise j): each cable's force depends on the other's. F is the cables' quasi-static
+    tension (the law's backbone, see :func:`equilibrium_run`). magnitude = C [m/N]."""
 
     name: ClassVar[str] = "mount"
     unit: ClassVar[str] = "m/N"
@@ -322,61 +477,89 @@ OOL_EFFECTS: dict[str, type[OolEffect]] = {c.name: c for c in (Eccentricity, Anc
 # --------------------------------------------------------------------------------------
 
 _ORDER = {"input": 0, "force": 1, "sensor": 2}
+#: effects whose law is elementwise in the tick's inputs (no state, array-safe)
+_ELEMENTWISE = {"sag", "temperature", "pulley", "viscous", "offset_gain"}
 _WITHIN = {"deadtime": 0, "sag": 0, "creep": 1, "temperature": 2, "pulley": 3, "viscous": 4, "offset_gain": 0}
 
 
-def run_cable_truth(variant: CableVariant, effects: list[Effect], *, t: np.ndarray, dt: float, x: np.ndarray,
-                    motor_length: np.ndarray, wrap_angle: np.ndarray, free_length: np.ndarray,
-                    temperature: np.ndarray, has_pulley: np.ndarray, stiffness: np.ndarray,
-                    cable_names: tuple[str, ...] = ()) -> tuple[np.ndarray, np.ndarray]:
-    """True cable force and sensor reading (both (N, m) [N], no noise) for elongation ``x``.
+_IK_CACHE: dict[tuple[int, int], tuple[RobotGeometry, Any]] = {}
 
-    Stages as the twin's :class:`~cablesvc.simulate.physics.TruthModel`: input effects
-    (dead time) on x, the variant's law, force effects, sensor effects; the effects are
-    the twin's own classes, bound afresh (deep copies) for this run."""
-    N, m = x.shape
-    run = RunInfo(n_cables=m, dt=float(dt), n_ticks=N, duration=float(t[-1] - t[0]) if N > 1 else float(dt),
-                  stiffness=np.asarray(stiffness, float), has_pulley=np.asarray(has_pulley, bool),
-                  cable_names=tuple(cable_names))
+
+def solve_ik(geom: RobotGeometry, position: np.ndarray, orientation: np.ndarray) -> Any:
+    """:func:`~cablesvc.kinematics.inverse_kinematics` with the solver kept per geometry
+    and batch size (building it costs more than a batch of 3000 poses); a fresh copy."""
+    from cablesvc.kinematics import InverseKinematics
+    key = (id(geom), int(position.shape[0]))
+    hit = _IK_CACHE.get(key)
+    if hit is None or hit[0] is not geom:
+        if len(_IK_CACHE) > 32:
+            _IK_CACHE.clear()
+        hit = (geom, InverseKinematics(geom, position.shape[0]))
+        _IK_CACHE[key] = hit
+    return hit[1](np.asarray(position, float), np.asarray(orientation, float)).copy()
+
+
+def _bind(effects: list[Effect], run: RunInfo) -> dict[str, list[Effect]]:
     effs = [copy.deepcopy(e) for e in effects]
     for e in effs:
         e.bind(run)
     effs = sorted([e for e in effs if e.active], key=lambda e: (_ORDER[e.stage], _WITHIN.get(e.name, 9)))
-    by = {s: [e for e in effs if e.stage == s] for s in ("input", "force", "sensor")}
+    return {s: [e for e in effs if e.stage == s] for s in ("input", "force", "sensor")}
+
+
+def apply_effects(effects: list[Effect], base_force: np.ndarray, *, t: np.ndarray, dt: float, x: np.ndarray,
+                  motor_length: np.ndarray, wrap_angle: np.ndarray, free_length: np.ndarray,
+                  temperature: np.ndarray, has_pulley: np.ndarray, stiffness: np.ndarray,
+                  cable_names: tuple[str, ...] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """True cable force and sensor reading (both (N, m) [N], no noise) from the law's
+    force ``base_force`` (N, m) at elongation ``x``.
+
+    The effects are the twin's own classes (bound afresh, deep copies), in its stage
+    order: ``force`` effects (sag, creep, temperature, pulley, viscous) make the true
+    cable force; ``sensor`` effects (offset_gain) what the sensor makes of it. Dead time
+    (the twin's ``input`` stage) is taken here as what 002 Sec 4 warns of, a delay between
+    the recorded length and force channels: the reading is the one of tau seconds ago,
+    while the platform balances the present force."""
+    N, m = base_force.shape
+    run = RunInfo(n_cables=m, dt=float(dt), n_ticks=N, duration=float(t[-1] - t[0]) if N > 1 else float(dt),
+                  stiffness=np.asarray(stiffness, float), has_pulley=np.asarray(has_pulley, bool),
+                  cable_names=tuple(cable_names))
+    by = _bind(effects, run)
+    force = np.array(base_force, dtype=np.float64)
+    if not any(by.values()):
+        return force, force.copy()
+    ml = np.asarray(motor_length, float)
+    zero = np.zeros((1, m))
+    # every tick's inputs at once: the memoryless effects run over the whole array in one
+    # call (their laws are elementwise, so this equals the twin's tick loop); the others
+    # (creep's scalar clock, the dead-time delay line) tick by tick
+    full = TickState()
+    full.k, full.dt, full.t = None, float(dt), np.asarray(t, float)[:, None]
+    full.x = full.x_in = np.asarray(x, float)
+    full.motor_length, full.wrap_angle, full.free_length = ml, np.asarray(wrap_angle), np.asarray(free_length)
+    full.temperature = np.asarray(temperature, float)[:, None]
+    full.v_slide = np.vstack([zero, (ml[:-1] - ml[1:]) / dt])
+    full.v_in = np.vstack([zero, np.diff(full.x, axis=0) / dt])
     tick = TickState()
     tick.dt = float(dt)
-    zero = np.zeros(m)
-    ml = np.asarray(motor_length, float)
 
-    def fill(k: int) -> None:
-        tick.k, tick.t = k, float(t[k])
-        tick.x, tick.motor_length = x[k], ml[k]
-        tick.wrap_angle, tick.free_length = wrap_angle[k], free_length[k]
-        tick.temperature = float(temperature[k])
-        tick.v_slide = zero if k == 0 else (ml[k - 1] - ml[k]) / dt
+    def run_stage(effs: list[Effect], value: np.ndarray, delay: bool = False) -> None:
+        for e in effs:
+            if e.name in _ELEMENTWISE:
+                e.step(full, value)
+                continue
+            for k in range(N):
+                tick.k, tick.t = k, float(t[k])
+                tick.x = value[k].copy() if delay else full.x[k]       # the delay line reads tick.x
+                tick.x_in, tick.v_in, tick.v_slide = full.x_in[k], full.v_in[k], full.v_slide[k]
+                tick.motor_length, tick.wrap_angle, tick.free_length = ml[k], full.wrap_angle[k], full.free_length[k]
+                tick.temperature = float(temperature[k])
+                e.step(tick, value[k])
 
-    x_in = np.array(x, dtype=np.float64)
-    if by["input"]:
-        for k in range(N):
-            fill(k)
-            v = x[k].copy()
-            for e in by["input"]:
-                e.step(tick, v)
-            x_in[k] = v
-    force = cable_law(variant, x_in, dt)
+    run_stage(by["force"], force)
     measured = force.copy()
-    if by["force"] or by["sensor"]:
-        for k in range(N):
-            fill(k)
-            tick.x_in = x_in[k]
-            tick.v_in = zero if k == 0 else (x_in[k] - x_in[k - 1]) / dt
-            v = force[k]
-            for e in by["force"]:
-                e.step(tick, v)
-            mv = v.copy()
-            for e in by["sensor"]:
-                e.step(tick, mv)
-            measured[k] = mv
+    run_stage(by["sensor"], measured)
+    run_stage(by["input"], measured, delay=True)
     return force, measured
 
 
@@ -392,8 +575,8 @@ class EquilibriumRun:
     ``position`` (N,3) / ``orientation`` (N,4): the balanced pose (what is recorded);
     ``force`` true cable forces [N]; ``measured`` the sensor reading without noise [N];
     ``elongation`` the true elongation [m] (truth geometry, effects' length errors
-    included); ``residual`` (N,6) A^T f + w of the true forces [N, N m]; ``passes``;
-    ``pose_shift`` max |translation| of the correction [m]."""
+    included); ``residual`` (N,6) A^T f + w of the true forces [N, N m]; ``sweeps``;
+    ``pose_shift`` max |translation| of the correction from the start pose [m]."""
 
     position: np.ndarray
     orientation: np.ndarray
@@ -401,71 +584,84 @@ class EquilibriumRun:
     measured: np.ndarray
     elongation: np.ndarray
     residual: np.ndarray
-    passes: int
+    sweeps: int
     pose_shift: float
-    info: dict[str, Any] = field(default_factory=dict)
-
-
-def _truth_pass(geom_truth, variant, effects, ool, P, Q, ml, t, dt, temperature, prev_force, stiffness, geom):
-    ik = inverse_kinematics(geom_truth, P, Q)
-    x = ik.length - ml
-    for o in ool:
-        x = x + o.length_error(ml, ik.unit, prev_force)
-    f, meas = run_cable_truth(variant, effects, t=t, dt=dt, x=x, motor_length=ml, wrap_angle=ik.wrap_angle,
-                              free_length=ik.free_length, temperature=temperature,
-                              has_pulley=np.asarray(geom.has_pulley, bool), stiffness=stiffness,
-                              cable_names=tuple(geom.cable_names))
-    AT = structure_matrix(ik.unit, ik.anchor_world)
-    w = platform_wrench(geom_truth, ik.rotation)
-    R = np.einsum("nim,nm->ni", AT, f) + w
-    return x, f, meas, AT, R
 
 
 def equilibrium_run(geom: RobotGeometry, variant: CableVariant, effects: list[Effect], ool: list[OolEffect], *,
                     t: np.ndarray, dt: float, position: np.ndarray, orientation: np.ndarray,
                     motor_length: np.ndarray, temperature: np.ndarray, balance: bool = True,
-                    tol: float = 1e-4, max_passes: int = 12) -> EquilibriumRun:
+                    tol: float = 1e-3, max_sweeps: int = 8) -> EquilibriumRun:
     """Simulate the truth with the winches at ``motor_length`` (N, m) [m] and the platform
-    at the commanded pose corrected to static equilibrium (``balance``; False: the pose
-    is held, e.g. a platform clamped for calibration). Passes repeat until the largest
-    force row of A^T f + w is below ``tol`` [N] (moments: [N m]) or ``max_passes``."""
+    at static equilibrium near the start pose ``position``/``orientation`` (``balance``;
+    False: the pose is held, a platform clamped for calibration).
+
+    A sweep linearises the length about the current pose, l(q + dq) = l(q) - A dq, and
+    solves tick by tick (Newton, the law's tangent stiffness) for the dq with
+    A^T (F + e) + w = 0 while the law's state advances (:func:`_balanced`); e is what
+    the force effects added in the previous sweep, and the effects' length errors
+    (mount compliance: loaded by the backbone force, the cable's quasi-static tension; its
+    rate-dependent part, about 1 %, is left out so the coupling stays a contraction) use its
+    forces. Sweeps repeat, re-linearised at the new pose,
+    until the force rows of A^T f + w with the exact kinematics are below ``tol`` [N]."""
     gt = geom
     for o in ool:
         gt = o.geometry(gt)
-    stiff = np.asarray(variant.k, float)           # nominal EA/L [N/m], what creep and sag use
+    stiff = np.asarray(variant.k, float)             # nominal EA/L [N/m], what creep and sag use
     P = np.array(position, dtype=np.float64)
     Q = np.array(orientation, dtype=np.float64)
+    P0 = P.copy()
     ml = np.asarray(motor_length, dtype=np.float64)
     rows = wrench_rows(geom)
-    prev = None
-    kk = np.broadcast_to(variant.stiffness(), ml.shape).copy()
-    x_prev = f_prev = None
-    passes = 0
-    P0 = P.copy()
-    need_ool_iter = any(isinstance(o, MountCompliance) for o in ool)
+    rowmask = np.zeros(6, dtype=np.bool_)
+    rowmask[rows] = True
+    kw = dict(t=t, dt=dt, motor_length=ml, temperature=temperature, has_pulley=np.asarray(geom.has_pulley, bool),
+              stiffness=stiff, cable_names=tuple(geom.cable_names))
+    prev: Optional[np.ndarray] = None          # the mount's load: the backbone force of the last sweep
+    mount = any(isinstance(o, MountCompliance) for o in ool)
+    # a viscous force reacts to the rate of the pose correction itself (c_v / dt is larger
+    # than the cable stiffness): it is part of the per-tick Newton, not of the lagged e
+    cv = np.zeros(ml.shape[1])
+    run = RunInfo(n_cables=ml.shape[1], dt=float(dt), n_ticks=ml.shape[0], duration=1.0, stiffness=stiff,
+                  has_pulley=np.asarray(geom.has_pulley, bool))
+    for eff in _bind(effects, run)["force"]:
+        if isinstance(eff, Viscous):
+            cv[np.asarray(eff.applied_cables, int)] += eff.magnitude
+    e = np.zeros(ml.shape)
+    sweeps = 0
+
+    def exact(P, Q, prev):
+        ik = solve_ik(gt, P, Q)
+        x = ik.length - ml
+        for o in ool:
+            x = x + o.length_error(ml, ik.unit, prev)
+        return ik, x
+
     while True:
-        x, f, meas, AT, R = _truth_pass(gt, variant, effects, ool, P, Q, ml, t, dt, temperature, prev, stiff, geom)
-        passes += 1
+        ik, x = exact(P, Q, prev)
+        fb = cable_law(variant, x, dt)
+        f, meas = apply_effects(effects, fb, x=x, wrap_angle=ik.wrap_angle, free_length=ik.free_length, **kw)
+        AT = structure_matrix(ik.unit, ik.anchor_world)
+        w = platform_wrench(gt, ik.rotation)
+        R = np.einsum("nim,nm->ni", AT, f) + w
+        load = backbone_force(variant, x) if mount else None
+        coupled = mount and (prev is None or float(np.max(np.abs(load - prev))) > 1e-3)
         if not balance:
-            if need_ool_iter and passes < 4:
-                prev = f
+            if coupled and sweeps < max_sweeps:
+                prev, sweeps = load, sweeps + 1
                 continue
             break
-        err = float(np.max(np.abs(R[:, rows])))
-        if (err <= tol and (not need_ool_iter or passes >= 4)) or passes >= max_passes:
+        err = float(np.max(np.abs(R[:, [r for r in rows if r < 3]])))
+        if (err <= tol and not coupled) or sweeps >= max_sweeps:
             break
-        if x_prev is not None:                  # secant stiffness per tick and cable, kept near the law's
-            dx = x - x_prev
-            ok = np.abs(dx) > 1e-9
-            ks = np.where(ok, (f - f_prev) / np.where(ok, dx, 1.0), kk)
-            kk = np.clip(ks, 0.5 * variant.stiffness(), 2.0 * variant.stiffness())
-        x_prev, f_prev, prev = x, f, f
-        A = AT[:, rows, :]
-        H = np.einsum("nim,nm,njm->nij", A, kk, A)
-        dq = np.zeros((P.shape[0], 6))
-        dq[:, rows] = np.linalg.solve(H, R[:, rows][..., None])[..., 0]
+        vin = np.vstack([np.zeros((1, x.shape[1])), np.diff(x, axis=0) / dt])
+        e = f - fb - cv[None, :] * vin           # the effects' share, lagged; viscous is solved implicitly
+        prev = load
+        dq, _, _, _ = _balanced(np.ascontiguousarray(x), np.ascontiguousarray(AT), np.ascontiguousarray(w),
+                             np.ascontiguousarray(e), cv, rowmask, float(dt), *_law_args(variant), 1e-6, 30)
         P = P + dq[:, :3]
         Q = quat_multiply(rotvec_to_quat(dq[:, 3:]), Q)
         Q /= np.linalg.norm(Q, axis=1, keepdims=True)
+        sweeps += 1
     return EquilibriumRun(position=P, orientation=Q, force=f, measured=meas, elongation=x, residual=R,
-                          passes=passes, pose_shift=float(np.max(np.linalg.norm(P - P0, axis=1))))
+                          sweeps=sweeps, pose_shift=float(np.max(np.linalg.norm(P - P0, axis=1))))
