@@ -96,7 +96,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
     o.add_argument("--listen", action="append", help="Zenoh listen endpoint (default tcp/127.0.0.1:7447)")
     o.add_argument("--connect", action="append", help="Zenoh endpoint to connect to (repeatable)")
     o.add_argument("--encoding", choices=["json", "compact"], help="forces payload encoding (default json)")
-    o.add_argument("--record", metavar="OUT.mcap", help="write inputs, forces and alarms to MCAP (opens in Foxglove)")
+    o.add_argument("--record", metavar="OUT.mcap", help="record the run: OUT.mcap holds inputs, forces and alarms "
+                                                        "(opens in Foxglove), OUT.csv the inputs only; an existing "
+                                                        "file is kept unless --overwrite is given")
+    o.add_argument("--overwrite", action="store_true", help="let --record replace an existing file")
     o.add_argument("--snapshot", help="hysteresis state file (default ~/.local/state/cablesvc/<robot>.state.npz)")
     o.add_argument("--no-snapshot", action="store_true", help="neither restore nor write the hysteresis state")
     o.add_argument("--snapshot-interval", type=float, default=None, help="seconds between snapshots (default 5)")
@@ -426,7 +429,8 @@ def plan_fleet(args, cfg: dict[str, Any], file: str) -> tuple[dict[str, Any], li
                              zenoh_config_file=shared["zenoh_config_file"], listen=shared["listen"],
                              connect=shared["connect"], record=record, snapshot=snapshot,
                              snapshot_interval_s=float(interval), alarm_config=alarm_cfg,
-                             wait_subscriber_s=args.wait_subscriber)
+                             wait_subscriber_s=args.wait_subscriber,
+                             record_overwrite=bool(getattr(args, "overwrite", False)))
         plans.append(RobotPlan(where=f"robots[{i}]", options=opts, source=source))
 
     for first, again, name in duplicate_names([p.options.robot.name for p in plans]):
@@ -543,6 +547,7 @@ def _cmd_run(args) -> int:
         snapshot_interval_s=float(interval),
         alarm_config=alarm_cfg,
         wait_subscriber_s=args.wait_subscriber,
+        record_overwrite=bool(getattr(args, "overwrite", False)),
     )
     stop = threading.Event()
 
@@ -552,8 +557,9 @@ def _cmd_run(args) -> int:
     try:
         daemon = Daemon(opts)
     except Exception as e:  # noqa: BLE001 - start-up failures get one clear line, not a traceback
+        from cablesvc.service.daemon import StartError
         from cablesvc.sources import SourceConfigError
-        if isinstance(e, SourceConfigError):
+        if isinstance(e, (SourceConfigError, StartError)):
             print(f"cablesvc run: {e}", file=sys.stderr)
             return 1
         if type(e).__module__.startswith("zenoh") or type(e).__name__ == "ZError":
@@ -603,10 +609,20 @@ def _cmd_run(args) -> int:
         st = daemon.status()
         log.info("stopped in %.2f s after %d ticks; input %s; latency %s", time.monotonic() - t0, st["ticks"],
                  json.dumps(st["input"]), json.dumps(st["latency_us"]))
+        if "recording" in st:
+            r = st["recording"]
+            log.info("recording %s: %d ticks written, %d missing", r["path"], r["written"], r["missing"])
+        bad_lines = getattr(daemon.source, "bad_lines", 0)
+        if bad_lines:
+            log.warning("replay %s: %d line(s) rejected as unreadable (each named above); the other ticks "
+                        "were played", src.get("path"), bad_lines)
     if errors:
         log.error("robot %s: its loop ended with an error: %s", robot.name, errors[0])
         return 1
-    return 0
+    failed = daemon.exit_problems()
+    for line in failed:
+        print(f"cablesvc run: {line}", file=sys.stderr)
+    return 1 if failed else 0
 
 
 def _run_fleet(args, cfg: dict[str, Any], file: str) -> int:
@@ -682,7 +698,10 @@ def _run_fleet(args, cfg: dict[str, Any], file: str) -> int:
     failed = {n: st["fleet"]["error"] for n, st in statuses.items() if st["fleet"]["error"]}
     for n, err in failed.items():
         log.error("robot %s: its loop ended with an error: %s", n, err)
-    return 1 if failed else 0
+    lost = [f"robot {n}: {line}" for n, d in fleet.daemons.items() for line in d.exit_problems()]
+    for line in lost:
+        print(f"cablesvc run: {line}", file=sys.stderr)
+    return 1 if failed or lost else 0
 
 
 def _since(v) -> str:

@@ -128,8 +128,9 @@ def _part_or_null(lst: list) -> Optional[list]:
 class _DirectFile:
     """Unbuffered output for mcap's Writer: each batch it writes goes to the OS at once."""
 
-    def __init__(self, path: Path):
-        self._f = open(path, "wb", buffering=0)
+    def __init__(self, path: Path, overwrite: bool = True):
+        self._f = open(path, "wb" if overwrite else "xb", buffering=0)
+        self._pos = 0
 
     def write(self, data: bytes) -> int:
         view = memoryview(data)
@@ -137,10 +138,12 @@ class _DirectFile:
         while view:
             n = self._f.write(view)
             view = view[n:]
+        self._pos += total
         return total
 
     def tell(self) -> int:
-        return self._f.tell()
+        """Bytes written (counted, not asked of the OS: the file may be a pipe)."""
+        return self._pos
 
     def flush(self) -> None:
         """Nothing is buffered here (mcap's Writer calls this from its ``flush()``)."""
@@ -158,7 +161,8 @@ class McapRecordingWriter:
     ``robot`` is the robot's name; ``metadata`` are further key/values for the ``cablesvc``
     metadata record (str to str; ``robot`` and ``format`` are set by the writer).
     ``chunk_size`` is the uncompressed chunk size in bytes; ``compression`` is ``"zstd"``,
-    ``"lz4"`` or ``"none"``. Use as a context manager; the file is closed (summary written)
+    ``"lz4"`` or ``"none"``. ``overwrite=False`` refuses an existing file
+    (``FileExistsError``) instead of replacing it. Use as a context manager; the file is closed (summary written)
     even when the block raises. Not thread-safe: call from one thread.
     """
 
@@ -169,6 +173,8 @@ class McapRecordingWriter:
         metadata: Optional[dict[str, str]] = None,
         chunk_size: int = DEFAULT_CHUNK_SIZE,
         compression: str = "zstd",
+        *,
+        overwrite: bool = True,
     ):
         if not isinstance(robot, str) or not robot:
             raise ValueError("robot must be a non-empty str (the robot's name)")
@@ -187,7 +193,7 @@ class McapRecordingWriter:
         if chunk_size < 1:
             raise ValueError("chunk_size must be >= 1")
         self.path = Path(path)
-        self._file = _DirectFile(self.path)
+        self._file = _DirectFile(self.path, overwrite)
         self._closed = False
         try:
             self._writer = Writer(

@@ -69,6 +69,7 @@ class DaemonOptions:
     alarm_config: Any = None                     # cablesvc.alarms.AlarmConfig or None for defaults
     exit_when_finished: bool = True              # replay: stop at the end of the file
     record_queue: int = 100_000                  # ticks the recorder may lag behind
+    record_overwrite: bool = False               # replace an existing record file (else refused)
     wait_subscriber_s: float = 0.0               # before reading the source, wait this long for a subscriber
     direct: bool = True                          # process ticks on the source's receive thread (no hand-off)
     input_fault_clear_s: float = 5.0             # input_fault clears after this long without a rejection
@@ -148,69 +149,181 @@ def read_snapshot(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray], di
     return meta, kernel, _unflatten_state("alarms/", arrays)
 
 
-# ---- MCAP recorder ---------------------------------------------------------------------
+# ---- recorder --------------------------------------------------------------------------
+
+class StartError(RuntimeError):
+    """The daemon cannot start as configured (a --record target it must not write, a
+    --replay file it cannot read); the message is one line naming the file."""
+
+
+REPLAY_RECORD_QUEUE = 2048          # ticks a replay's recorder may lag behind (the loop then waits)
+RECORD_SUFFIXES = {".mcap": "MCAP (inputs, forces and alarms)", ".csv": "CSV (inputs only)"}
+
+
+def check_record_target(record: Path, source: dict[str, Any], overwrite: bool) -> None:
+    """Refuse a ``--record`` target before anything is opened (:class:`StartError`, one line):
+    a suffix other than .mcap / .csv (the format follows the suffix), the input recording
+    itself (also through a symlink, a hard link or another spelling of its path), an
+    existing file without ``overwrite``, a directory, a missing parent directory."""
+    record = Path(record)
+    suffix = record.suffix.lower()
+    if suffix not in RECORD_SUFFIXES:
+        raise StartError(f"--record {record}: unknown recording format {suffix or '(no suffix)'!r}; "
+                         "the suffix picks it: .mcap (inputs, forces and alarms) or .csv (inputs only)")
+    replay = source.get("path") if source.get("kind") == "replay" else None
+    if replay is not None:
+        same = os.path.realpath(record) == os.path.realpath(replay)
+        try:
+            same = same or os.path.samefile(record, replay)
+        except OSError:
+            pass
+        if same:
+            raise StartError(f"--record {record}: this is the --replay input {replay}; recording onto it "
+                             "would destroy it (record to another file)")
+    if record.is_dir():
+        raise StartError(f"--record {record}: is a directory, not a recording file")
+    if os.path.lexists(record) and not overwrite:
+        raise StartError(f"--record {record}: the file exists; it is kept (pass --overwrite to replace it)")
+    parent = record.parent if str(record.parent) else Path(".")
+    if not parent.is_dir():
+        raise StartError(f"--record {record}: directory {parent} does not exist")
+
 
 class Recorder:
-    """MCAP writer thread: the loop hands it (input, forces payload, alarm payloads) tuples,
-    and (None, t, alarm payloads) for alarms raised or cleared outside a tick (input stale,
-    lost or faulty).
+    """Recording writer thread: the loop hands it (input, forces payload, alarm payloads)
+    tuples, and (None, t, alarm payloads) for alarms raised or cleared outside a tick (input
+    stale, lost or faulty). ``.mcap`` records all three; ``.csv`` the inputs only.
 
-    The queue is bounded; when the disk cannot keep up, ticks are dropped and counted
-    (``dropped``), and the loop never waits.
+    The queue is bounded. With ``block=False`` (live sources) a full queue drops the tick
+    and counts it (``dropped``): the loop never waits for the disk. With ``block=True``
+    (replays, which have no real-time deadline) the loop waits for room instead, so that no
+    tick is dropped whatever the replay speed.
+
+    :meth:`close` waits for the thread to write everything queued: as long as it makes
+    progress, whatever the length of the queue; only a writer that stalls (no item written
+    for ``stall_s``) is given up on. ``missing`` = ticks handed over - ticks written
+    (dropped, lost to a write error, or still queued when the writer stalled).
     """
 
-    def __init__(self, path: Path, robot: str, metadata: dict[str, str], maxsize: int):
+    def __init__(self, path: Path, robot: str, metadata: dict[str, str], maxsize: int, *,
+                 block: bool = False, overwrite: bool = True, stall_s: float = 10.0):
         from cablesvc.recording import ALARMS_TOPIC, FORCES_TOPIC, McapRecordingWriter
+        from cablesvc.recording.csv_io import CsvRecordingWriter
 
         self._forces_topic = FORCES_TOPIC
         self._alarms_topic = ALARMS_TOPIC
-        self.writer = McapRecordingWriter(path, robot, metadata=metadata)
+        path = Path(path)
+        if path.suffix.lower() == ".csv":
+            md = dict(metadata)
+            if "params" in md:                      # CSV metadata are one line each
+                md["params_json"] = json.dumps(md.pop("params"))
+            self.writer = CsvRecordingWriter(path, robot, metadata=md, overwrite=overwrite)
+        else:
+            self.writer = McapRecordingWriter(path, robot, metadata=metadata, overwrite=overwrite)
+        self._topics = getattr(self.writer, "has_topics", True)
         self.q: queue.Queue = queue.Queue(maxsize=maxsize)
-        self.dropped = 0
+        self.block = block
+        self.stall_s = stall_s
+        self.handed = 0                 # ticks the loop handed over (queued or dropped)
+        self.dropped = 0                # ticks dropped from a full queue (block=False) or after close
         self.written = 0
         self.error: str | None = None
+        self._done = 0                  # items taken off the queue (progress, for close)
+        self._closing = False
+        self._abandoned = False
         self._thread = threading.Thread(target=self._run, name="cablesvc-recorder", daemon=True)
         self._thread.start()
 
+    @property
+    def missing(self) -> int:
+        """Ticks handed over that are not in the file (yet)."""
+        return self.handed - self.written
+
     def put(self, item) -> None:
+        if item[0] is not None:
+            self.handed += 1
+        if self._closing:
+            if item[0] is not None:
+                self.dropped += 1
+            return
         try:
             self.q.put_nowait(item)
+            return
         except queue.Full:
+            pass
+        while self.block and self._thread.is_alive() and not self._closing:
+            try:
+                self.q.put(item, timeout=0.1)
+                return
+            except queue.Full:
+                continue
+        if item[0] is not None:
             self.dropped += 1
 
     def _run(self) -> None:
         while True:
             item = self.q.get()
+            self._done += 1
             if item is None:
+                if self._abandoned:               # close() gave up on us: close the file ourselves
+                    try:
+                        self.writer.close()
+                    except Exception:  # noqa: BLE001
+                        pass
                 return
             if self.error:
                 continue
             tick, forces, alarms = item
             try:
                 if tick is None:                   # alarms outside a tick: forces is their time
-                    for a in alarms:
-                        self.writer.write(self._alarms_topic, forces, a)
+                    if self._topics:
+                        for a in alarms:
+                            self.writer.write(self._alarms_topic, forces, a)
                     continue
                 self.writer.write_input(tick.seq, tick.t, tick.motor_length, tick.force, tick.position,
                                         tick.orientation, tick.temperature)
-                self.writer.write(self._forces_topic, tick.t, forces)
-                for a in alarms:
-                    self.writer.write(self._alarms_topic, tick.t, a)
+                if self._topics:
+                    self.writer.write(self._forces_topic, tick.t, forces)
+                    for a in alarms:
+                        self.writer.write(self._alarms_topic, tick.t, a)
                 self.written += 1
             except Exception as e:  # noqa: BLE001 - a full disk must not stop the daemon
                 self.error = f"recording stopped: {e}"
                 log.error(self.error)
 
-    def close(self, timeout: float = 1.5) -> None:
-        try:
-            self.q.put(None, timeout=timeout)
-        except queue.Full:
-            pass
-        self._thread.join(timeout)
+    def close(self) -> int:
+        """Write out the queue, close the file; return :attr:`missing` (0: every tick handed
+        over is in the file). Waits while the writer makes progress (bounded by the queue);
+        a writer stalled for ``stall_s`` is left behind and its file is not closed."""
+        self._closing = True
+        sentinel = False
+        last, last_at = -1, time.monotonic()
+        while self._thread.is_alive():
+            if not sentinel:
+                try:
+                    self.q.put(None, timeout=0.1)
+                    sentinel = True
+                except queue.Full:
+                    pass
+            else:
+                self._thread.join(0.1)
+            if self._done != last:
+                last, last_at = self._done, time.monotonic()
+            elif time.monotonic() - last_at > self.stall_s:
+                self.error = (f"the recording writer stalled: nothing written for {self.stall_s:g} s with "
+                              f"{self.q.qsize()} items still queued; gave up waiting")
+                log.error("%s", self.error)
+                self._abandoned = True
+                if not self._thread.is_alive():       # it finished just now: close it here after all
+                    self._abandoned = False
+                    break
+                return self.missing
         try:
             self.writer.close()
         except Exception as e:  # noqa: BLE001
-            log.error("closing the recording failed: %s", e)
+            self.error = f"closing the recording failed: {e}"
+            log.error("%s", self.error)
+        return self.missing
 
 
 # ---- the daemon ------------------------------------------------------------------------
@@ -269,6 +382,8 @@ class Daemon:
         self._last_snapshot = time.monotonic()
         self.snapshot_path = options.snapshot
         self.snapshot_error: str | None = None
+        if options.record is not None:           # before anything is opened or restored
+            check_record_target(Path(options.record), options.source, options.record_overwrite)
         self._restore()
 
         if source is None:
@@ -276,6 +391,7 @@ class Daemon:
             source = open_source(self.robot, options.source)
         self.source = source
         self.recorder: Recorder | None = None
+        self._recorder_closed: Recorder | None = None  # the recorder after close (status, exit code)
         self.publisher = None
         self._closed_counts = (0, 0)              # (published, skipped) when the publisher closed
         try:
@@ -286,14 +402,45 @@ class Daemon:
                 self.publisher = Publisher(self.name, cfg, encoding=options.encoding, status=self.status)
             else:
                 self.publisher = publisher_factory(self.name, self.status)
+            self.source.open()
+            self._check_input_readable()
+            # only now, with the input read, is anything opened for writing
             if options.record is not None:
                 md = {"source": json.dumps(options.source, default=str), "model": options.params.model,
                       "params": options.params.to_toml(), "cablesvc_version": __version__}
-                self.recorder = Recorder(Path(options.record), self.name, md, options.record_queue)
-            self.source.open()
+                replay = options.source.get("kind") == "replay"
+                # a replay waits for the writer (no tick dropped); a short queue keeps what is
+                # left to write at shutdown, and so the time to stop, short
+                size = min(options.record_queue, REPLAY_RECORD_QUEUE) if replay else options.record_queue
+                try:
+                    self.recorder = Recorder(Path(options.record), self.name, md, size, block=replay,
+                                             overwrite=options.record_overwrite)
+                except FileExistsError:
+                    raise StartError(f"--record {options.record}: the file exists; it is kept "
+                                     "(pass --overwrite to replace it)") from None
+                except (OSError, ValueError) as e:
+                    why = e.strerror if isinstance(e, OSError) and e.strerror else e
+                    raise StartError(f"--record {options.record}: cannot write it: {why}") from None
         except BaseException:
+            try:
+                self.source.close()
+            except Exception as e:  # noqa: BLE001
+                log.error("closing the source failed: %s", e)
             self._close_outputs()
             raise
+
+    def _check_input_readable(self) -> None:
+        """A replay whose file cannot be read (empty, not a recording, bad header) is finished
+        at open: a :class:`StartError` with the reader's one-line reason, before any output
+        file is opened."""
+        src = self.source
+        if self.opt.source.get("kind") != "replay" or not getattr(src, "finished", False):
+            return
+        problems = src.problems()
+        for p in problems:
+            self.problems.append(p)
+        why = next((p.message for p in problems if p.kind == "rejected"), None)
+        raise StartError(f"cannot replay: {why or f'{src.label}: no tick to play'}")
 
     # -- state restore / snapshot ---------------------------------------------------------
     def _snapshot_meta(self) -> dict[str, Any]:
@@ -361,7 +508,7 @@ class Daemon:
         # the loop (or the source's receive thread) changes these while a Zenoh thread runs
         # this: read each once, so that a None set in between cannot fail the query
         fault_alarm = self._fault_alarm
-        recorder = self.recorder
+        recorder = self.recorder or self._recorder_closed
         counters = self.source.counters.as_dict()
         if s.kernel_errors:
             # the source accepted these ticks but the kernel refused them: count them once,
@@ -392,7 +539,7 @@ class Daemon:
         }
         if recorder is not None:
             out["recording"] = {"path": str(self.opt.record), "written": recorder.written,
-                                "dropped": recorder.dropped, "error": recorder.error}
+                                "dropped": recorder.dropped, "missing": recorder.missing, "error": recorder.error}
         return out
 
     def view(self) -> dict[str, Any] | None:
@@ -561,7 +708,7 @@ class Daemon:
     def _close_outputs(self) -> None:
         if self.recorder is not None:
             self.recorder.close()
-            self.recorder = None
+            self._recorder_closed, self.recorder = self.recorder, None
         if self.publisher is not None:
             # status() after close reports what the publisher put and skipped, not the calls
             self._closed_counts = (getattr(self.publisher, "forces_published", self.stats.published),
@@ -592,3 +739,21 @@ class Daemon:
                     self.step(tick)
             self.snapshot()
         self._close_outputs()
+
+    def exit_problems(self) -> list[str]:
+        """After :meth:`close`: one line for each thing that makes the exit status non-zero:
+        accepted ticks missing from the recording, a recording that failed, a replay that
+        played no tick."""
+        out = []
+        rec = self._recorder_closed or self.recorder
+        if rec is not None:
+            if rec.missing:
+                out.append(f"recording {self.opt.record}: {rec.missing} of {rec.handed} ticks are missing "
+                           f"({rec.dropped} dropped from a full queue, {rec.written} written)"
+                           + (f"; {rec.error}" if rec.error else ""))
+            elif rec.error:
+                out.append(f"recording {self.opt.record}: {rec.error}")
+        if self.opt.source.get("kind") == "replay" and self.stats.ticks == 0:
+            out.append(f"replay {self.opt.source.get('path')}: no tick was played "
+                       f"(input {json.dumps(self.source.counters.as_dict())})")
+        return out
