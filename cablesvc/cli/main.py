@@ -227,6 +227,8 @@ def build_parser() -> argparse.ArgumentParser:
     boucwen.add_parser(bsub)
     cable_experiment.add_parser(bsub)
     can_codec.add_parser(bsub)
+    from cablesvc.bench import record
+    record.add_parser(bsub)
     b.set_defaults(func=lambda a: (b.print_help(), 2)[1])
     return p
 
