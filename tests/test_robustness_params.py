@@ -144,7 +144,7 @@ def test_polynomial_degree_invalid(tmp_path, value):
 
 
 def test_polynomial_degree_valid_and_model_level(tmp_path):
-    f = _write(tmp_path, "poly.toml", 'format = 1\nmodel = "polynomial"\n[options]\ndegree = 5\n[params]\na5 = 1.0\n')
+    f = _write(tmp_path, "poly.toml", 'format = 1\nmodel = "polynomial"\n[options]\ndegree = 5\n[params]\na1 = 1.0e4\na5 = 1.0\n')
     assert load_params(f).build(8).degree == 5
     with pytest.raises(ModelParameterError, match="degree must be an odd integer"):
         PolynomialHysteresis(degree="x")

@@ -26,11 +26,21 @@ import numpy as np
 
 from cablesvc.models import MODELS, AmplitudeDependent, CableModel, ModelParameterError
 from cablesvc.models.amplitude import TABLE_COLUMNS
-from cablesvc.models.boucwen import INTEGRATORS
+from cablesvc.models.boucwen import INTEGRATORS, max_live_substeps
 
 OPTION_KEYS = {"degree", "integrator", "substeps"}
 #: parameters that must be strictly positive, per model (the kernel divides by them)
 POSITIVE_PARAMS = {"amplitude": ("amplitude_init", "omega_init")}
+#: each model's elastic stiffness [N/m] (linear: E*A [N]): > 0 for every cable, with the
+#: model's default where the file omits it. A cable's tension grows with its elongation
+#: (eq 3 of 002; a1 of eqs 4-7 of 002; k_e of eq 1 of 000; k1 of 001 eq 4.3): zero or a
+#: negative stiffness makes the predicted tension fall, or stay put, as the cable stretches.
+STIFFNESS_PARAMS = {"linear": ("ea",), "polynomial": ("a1",), "boucwen": ("k_e",), "asymmetric": ("k1",)}
+#: hysteretic stiffnesses [N/m]: >= 0 (0: no hysteresis, what identification writes for a
+#: cable it did not fit)
+NONNEGATIVE_PARAMS = {"boucwen": ("k_d",), "asymmetric": ("alpha",)}
+#: amplitude-model tables that are stiffnesses: > 0 at every amplitude level and cable
+POSITIVE_TABLES = {"K1": "linear stiffness K1(A) of eq 8 of 002 [N/m]"}
 #: tables the amplitude model requires
 REQUIRED_TABLES = ("amplitudes", "K0", "K1")
 
@@ -65,6 +75,13 @@ def _content_problems(model: str, params: dict, options: dict, tables: dict) -> 
             problems.append(f"options.degree: must be an odd integer >= 1, got {v!r}")
         elif k == "substeps" and not (_is_int(v) and v >= 1):
             problems.append(f"options.substeps: must be an integer >= 1, got {v!r}")
+        elif k == "substeps":
+            integ = options.get("integrator", "semi-implicit")
+            most = max_live_substeps(integ if integ in INTEGRATORS else "semi-implicit")
+            if v > most:
+                problems.append(f"options.substeps: {v} sub-steps per tick cannot fit the live tick; the {integ} "
+                                f"integrator allows at most {most} (half of a 1 kHz tick, derivation in "
+                                f"cablesvc/models/boucwen.py)")
         elif k == "integrator" and not (isinstance(v, str) and v in INTEGRATORS):
             problems.append(f"options.integrator: must be one of {list(INTEGRATORS)}, got {v!r}")
     for k, v in params.items():
@@ -80,6 +97,20 @@ def _content_problems(model: str, params: dict, options: dict, tables: dict) -> 
             problems.append(f"params.{k}: values must be finite")
         elif k in POSITIVE_PARAMS.get(model, ()) and not np.all(a > 0):
             problems.append(f"params.{k}: must be > 0, got {v!r}")
+        elif k in NONNEGATIVE_PARAMS.get(model, ()) and not np.all(a >= 0):
+            problems.append(f"params.{k}: hysteretic stiffness must be >= 0 [N/m]{_where_bad(a, a >= 0)}")
+    for k in STIFFNESS_PARAMS.get(model, ()):
+        v = params.get(k, MODELS[model].defaults.get(k, 0.0))
+        if _has_bool(v):
+            continue                        # reported above
+        try:
+            a = np.asarray(v, dtype=float)
+        except (TypeError, ValueError):
+            continue                        # reported above
+        if np.all(np.isfinite(a)) and not np.all(a > 0):
+            missing = "" if k in params else f" (not given: the default is {v!r})"
+            problems.append(f"params.{k}: the elastic stiffness must be > 0 for every cable"
+                            f"{_where_bad(a, a > 0)}{missing}")
     if model == "amplitude":
         for k in REQUIRED_TABLES:
             if k not in tables:
@@ -100,7 +131,27 @@ def _content_problems(model: str, params: dict, options: dict, tables: dict) -> 
         elif a.ndim not in (1, 2) or not np.all(np.isfinite(a)):
             problems.append(f"tables.{k}: must be a list of finite numbers (one per level) or a list of "
                             f"per-cable rows")
+        elif k in POSITIVE_TABLES and not np.all(a > 0):
+            problems.append(f"tables.{k}: the {POSITIVE_TABLES[k]} must be > 0 at every amplitude level "
+                            f"and cable{_where_bad(a, a > 0, table=True)}")
     return problems
+
+
+def _where_bad(a: np.ndarray, ok: np.ndarray, table: bool = False) -> str:
+    """``, got -5 (cable 3)`` for the first value of ``a`` that fails ``ok``: a scalar, one
+    value per cable, or (``table``) one per level or per-cable rows of levels."""
+    bad = np.argwhere(~np.broadcast_to(ok, a.shape))
+    if bad.size == 0:
+        return ""
+    idx = tuple(int(i) for i in bad[0])
+    v = float(a[idx]) if a.ndim else float(a)
+    if not idx:
+        where = ""
+    elif table:
+        where = f" (level {idx[-1]}" + (f", cable {idx[0]}" if len(idx) == 2 else ", every cable") + ")"
+    else:
+        where = f" (cable {idx[0]})"
+    return f", got {v:g}{where}"
 
 
 def _amplitude_range_problems(r: Any) -> list[str]:

@@ -11,6 +11,30 @@ from cablesvc.models.base import CableModel, ModelParameterError, ModelState
 INTEGRATORS = ("semi-implicit", "rk4")
 _TINY = 1e-300
 
+# ---- sub-steps the live tick can afford -------------------------------------------------
+# A sub-step is a fixed sequence of numpy calls on (lanes, cables) arrays (counted in
+# BoucWenIntegrator.advance: the right-hand side is 8 calls; semi-implicit = rhs + 11 for the
+# linearised backward-Euler update + 2 for the projection; rk4 = 4 rhs + 15 for the stages
+# and their sum + 2 for the projection). On the live service's arrays (1 lane, <= 8 cables)
+# a call costs its dispatch overhead, about 0.24 us on a fast machine (issue 20 measured
+# 1000 semi-implicit sub-steps = 21 000 calls at 5 ms per tick). The live tick is 1 ms
+# (1 kHz, the embedded controller's rate and the fastest documented one) and the model may
+# take at most half of it (IK, FK, alarms and publishing need the rest: docs/performance.md).
+# So at most LIVE_TICK_S * LIVE_MODEL_SHARE / (NUMPY_CALL_S * calls) sub-steps: 99
+# semi-implicit, 42 rk4. More can never meet the tick on any machine; whether fewer meet it
+# on a given machine is measured by `cablesvc bench kernel --params FILE`. Offline uses
+# (identification, convergence references) may build the model with more.
+CALLS_PER_SUBSTEP = {"semi-implicit": 8 + 11 + 2, "rk4": 4 * 8 + 15 + 2}
+LIVE_TICK_S = 1e-3
+LIVE_MODEL_SHARE = 0.5
+NUMPY_CALL_S = 0.24e-6
+
+
+def max_live_substeps(integrator: str) -> int:
+    """The most Bouc-Wen sub-steps per tick the live service accepts for ``integrator`` (see
+    the derivation above): 99 semi-implicit, 42 rk4."""
+    return int(LIVE_TICK_S * LIVE_MODEL_SHARE / (NUMPY_CALL_S * CALLS_PER_SUBSTEP[integrator]))
+
 
 class BoucWenIntegrator:
     """Advances the Bouc-Wen hysteretic variable over an elongation increment.
@@ -189,8 +213,12 @@ class BoucWen(BoucWenFamily):
     }
 
     def check_params(self):
-        if np.any(self.params["k_d"] < 0):
-            raise ModelParameterError("boucwen: k_d must be >= 0")
+        # a negative stiffness makes the cable push back less the more it is stretched: no
+        # cable does that (k_e = 0, k_d = 0 are the limits identification's search reaches)
+        for k in ("k_e", "k_d"):
+            if np.any(self.params[k] < 0):
+                raise ModelParameterError(f"boucwen: {k} must be >= 0 [N/m] ({self.param_docs[k]}), "
+                                          f"got {self.params[k].min():g}")
         super().check_params()
 
     def _force(self, z):
