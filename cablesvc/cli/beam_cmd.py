@@ -87,6 +87,16 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cycles", type=_positive_int, default=2, help="periods simulated, last one reported (default 2)")
 
 
+def _size_problem(args: argparse.Namespace, lanes: int) -> str | None:
+    """Why the run cannot fit in memory (``--steps`` x ``--cycles`` x ``--elements`` for
+    ``lanes`` loops solved together; cablesvc.cli.limits), or None: checked before the
+    solver allocates anything."""
+    from cablesvc.cli.limits import beam_bytes, memory_problem
+
+    return memory_problem(f"--steps {args.steps} x --cycles {args.cycles} x --elements {args.elements} "
+                          f"for {lanes} loop(s)", beam_bytes(lanes, args.steps, args.cycles, args.elements))
+
+
 def _length(args) -> float:
     return 1e-3 * (args.length if args.length is not None else (75.0 if args.rope == "7x19" else 100.0))
 
@@ -97,6 +107,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if args.out and (why := dir_problem(args.out)):
         return _fail("simulate", f"--out {args.out}: {why}")
     A = np.array([1e-3 * float(a) for a in args.amplitude])
+    if why := _size_problem(args, A.size):
+        return _fail("simulate", why)
     sec, length, par = _rope(args.rope), _length(args), _params(args)
     lp = stabilised_loop(sec, length, par, A, options=_options(args))
     rows = [{"amplitude_mm": 1e3 * a, "f_max_N": float(np.max(lp.f[i])), "f_min_N": float(np.min(lp.f[i])),
@@ -141,6 +153,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
     from rich.progress import Progress
     from rich.table import Table
     from cablesvc.beam.identify import BeamTest, identify_beam, synthetic_test
+    if why := _size_problem(args, args.particles):
+        return _fail("identify", why)
     sec, length = _rope(args.rope), _length(args)
     opt = _options(args)
     if args.synthetic:
@@ -214,6 +228,9 @@ def cmd_paper(args: argparse.Namespace) -> int:
     from cablesvc.beam.paper import reproduce
     if why := dir_problem(args.out):
         return _fail("paper", f"--out {args.out}: {why}")
+    from cablesvc.beam.paper import AMPLITUDES
+    if why := _size_problem(args, len(AMPLITUDES)):
+        return _fail("paper", why)
     s = reproduce(args.out, options=_options(args))
     if args.json:
         print(json.dumps(s))
@@ -235,6 +252,8 @@ def cmd_bridge(args: argparse.Namespace) -> int:
         if why:
             return _fail("bridge", f"--write {args.write}: {why}")
     A = [1e-3 * float(a) for a in args.amplitude]
+    if why := _size_problem(args, len(A)):
+        return _fail("bridge", why)
     fit = fit_lumped(_rope(args.rope), _length(args), _params(args), A, options=_options(args))
     print(fit.report())
     if args.write:

@@ -52,6 +52,9 @@ def cmd_simulate(args) -> int:
         print(f"cablesvc simulate: --out {args.out}: directory {parent} does not exist", file=sys.stderr)
         return 2
     robot = load_robot(args.robot)
+    if why := _twin_size_problem(args, robot.n_cables):
+        print(f"cablesvc simulate: {why}", file=sys.stderr)
+        return 2
     effects = [effect_from_spec(s, robot.n_cables) for s in args.effect]
     base = load_params(args.truth_params) if args.truth_params else None
     truth = TruthConfig(base=base, effects=effects, noise_std=args.noise, seed=args.seed)
@@ -71,6 +74,23 @@ def cmd_simulate(args) -> int:
     print(f"wrote {args.out}: {rec.n_ticks} ticks, {rec.n_cables} cables, "
           f"{rec.t[-1] - rec.t[0]:.1f} s, effects: {', '.join(e.describe() for e in effects) or 'none'}")
     return 0
+
+
+def _twin_size_problem(args, n_cables: int) -> str | None:
+    """``--rate`` / ``--duration`` that are not finite and > 0, or whose run would not fit
+    in memory (cablesvc.cli.limits): checked before the twin allocates anything."""
+    import math
+
+    from cablesvc.cli.limits import TWIN_DEFAULT_DURATION_MAX_S, memory_problem, twin_bytes
+
+    for flag, v in (("--rate", args.rate), ("--duration", args.duration)):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            return f"{flag}: expected a finite number > 0, got {v!r}"
+    duration = TWIN_DEFAULT_DURATION_MAX_S if args.duration is None else args.duration
+    what = (f"--rate {args.rate:g} Hz x " + (f"--duration {args.duration:g} s" if args.duration is not None else
+                                             f"the scenario's duration (up to {duration:g} s)")
+            + f" = {args.rate * duration:.3g} ticks of {n_cables} cables")
+    return memory_problem(what, twin_bytes(args.rate * duration, n_cables))
 
 
 # ---- robots ----------------------------------------------------------------------------

@@ -159,6 +159,23 @@ def _sim_controller(robot, src: dict[str, Any], *, scenario: str | None, rate: f
                         **{k: v for k, v in src.items() if k in ("dbc", "deadline_s", "fd")}}
 
 
+def sim_rate_problem(rate: Any, n_cables: int) -> str | None:
+    """Why the embedded controller cannot tick at ``rate`` [Hz] (None: the default), or None:
+    above the rate the daemon's kernel can follow (cablesvc.cli.limits.MAX_LIVE_RATE_HZ), or
+    more memory than there is for the motion it precomputes. Checked before it is built."""
+    from cablesvc.cli.limits import MAX_LIVE_RATE_HZ, SIM_CONTROLLER_SECONDS, memory_problem, twin_bytes
+
+    if rate is None:
+        return None
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not (math.isfinite(rate) and rate > 0):
+        return f"rate: expected a tick rate in Hz > 0 (a finite number), got {rate!r}"
+    if rate > MAX_LIVE_RATE_HZ:
+        return (f"rate {rate:g} Hz: the daemon's kernel cannot follow a controller faster than {MAX_LIVE_RATE_HZ} Hz "
+                "(half a tick at its fastest measured 53 us per tick; cablesvc/cli/limits.py)")
+    return memory_problem(f"rate {rate:g} Hz x the {SIM_CONTROLLER_SECONDS:g} s the simulated controller precomputes",
+                          twin_bytes(rate * SIM_CONTROLLER_SECONDS, n_cables))
+
+
 def source_config(args, cfg: dict[str, Any], robot_name: str) -> dict[str, Any]:
     """Merge the [source] table of the config file with the command-line flags."""
     src = dict(cfg.get("source", {}))
@@ -447,6 +464,8 @@ def plan_fleet(args, cfg: dict[str, Any], file: str) -> tuple[dict[str, Any], li
 
     for i, src in sims:
         plan = plans[i]
+        if why := sim_rate_problem(src.get("rate"), plan.options.robot.n_cables):
+            raise FleetConfigError(f"{file}: {plan.where}.source.{why}")
         try:
             controller, can_src = _sim_controller(plan.options.robot, src, scenario=src.get("scenario"),
                                                   rate=src.get("rate"), seed=src.get("seed"),
@@ -516,6 +535,9 @@ def _cmd_run(args) -> int:
         scenario = args.scenario if args.scenario is not None else sim.get("scenario")
         rate = args.rate if args.rate is not None else sim.get("rate")
         seed = args.seed if args.seed is not None else sim.get("seed")
+        if why := sim_rate_problem(rate, robot.n_cables):
+            print(f"cablesvc run: {'--' if args.rate is not None else 'source.'}{why}", file=sys.stderr)
+            return 2
         try:
             controller, src = _sim_controller(robot, src, scenario=scenario, rate=rate, seed=seed,
                                               channel=src.get("channel") or f"cablesvc-sim-{os.getpid()}")
