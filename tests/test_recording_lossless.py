@@ -284,3 +284,34 @@ def test_record_into_a_missing_directory_is_one_line(tmp_path: Path, replay_file
     proc = _run(["--source", "replay", "--replay", str(path), "--record", "/nonexistent/dir/out.mcap"], tmp_path,
                 timeout=60)
     _one_line_error(proc, "/nonexistent/dir/out.mcap", "does not exist")
+
+
+def test_fleet_refuses_a_record_file_that_is_a_replay_input(tmp_path: Path, replay_file):
+    """In a fleet, robot B's record file must not be robot A's replay input (and a robot's
+    own input is refused by its daemon, before anything is written)."""
+    import json as _json
+    import tomllib
+
+    from cablesvc.cli.main import build_parser
+    from cablesvc.cli.run_cmd import FleetConfigError, plan_fleet
+
+    path, _ = replay_file
+    a = tmp_path / "a.mcap"
+    a.write_bytes(path.read_bytes())
+    p4 = tmp_path / "p4.mcap"
+    write_recording(p4, simulate_recording("planar4", "hold-sine", None, duration=0.2, rate=100.0, seed=1))
+    before = _sha(a)
+    text = (f'[[robots]]\nrobot = "ipanema3"\n[robots.source]\nkind = "replay"\npath = {_json.dumps(str(a))}\n'
+            f'[[robots]]\nrobot = "planar4"\nrecord = {_json.dumps(str(tmp_path / "sub" / ".." / "a.mcap"))}\n'
+            f'[robots.source]\nkind = "replay"\npath = {_json.dumps(str(p4))}\n')
+    (tmp_path / "sub").mkdir()
+    args = build_parser().parse_args(["run", "--config", "fleet.toml", "--no-view"])
+    with pytest.raises(FleetConfigError, match=r"robots\[1\]\.record: .* is robots\[0\]'s replay input"):
+        plan_fleet(args, tomllib.loads(text), "fleet.toml")
+    from cablesvc.service.daemon import StartError
+    robot = load_robot("ipanema3")
+    with pytest.raises(StartError, match="--replay input"):
+        Daemon(DaemonOptions(robot=robot, params=nominal_params(robot.geometry()),
+                             source={"kind": "replay", "path": str(a), "speed": 0}, record=a, record_overwrite=True,
+                             listen=(f"tcp/127.0.0.1:{free_tcp_port()}",)))
+    assert _sha(a) == before

@@ -461,6 +461,14 @@ def plan_fleet(args, cfg: dict[str, Any], file: str) -> tuple[dict[str, Any], li
             if path is not None:
                 raise FleetConfigError(f"{file}: robots[{again}].{what}: {path} is also robots[{first}]'s {what} "
                                        "file; each robot needs its own")
+    # a robot's record file must not be another robot's replay input (its own is refused by its daemon)
+    replays = {os.path.realpath(p.options.source["path"]): j for j, p in enumerate(plans)
+               if p.options.source.get("kind") == "replay" and p.options.source.get("path")}
+    for i, p in enumerate(plans):
+        j = replays.get(os.path.realpath(p.options.record)) if p.options.record is not None else None
+        if j is not None:
+            raise FleetConfigError(f"{file}: robots[{i}].record: {p.options.record} is robots[{j}]'s replay input; "
+                                   "recording onto it would destroy it")
 
     for i, src in sims:
         plan = plans[i]
