@@ -34,9 +34,11 @@ How a case is made:
    lengths; the platform settles to static equilibrium with the truth forces
    (:func:`cablesvc.bench.truth.equilibrium_run`); the recorded pose is the balanced one.
 3. **Effects**: the library's (twin) effects and the out-of-library ones
-   (:data:`cablesvc.bench.truth.OOL_EFFECTS`) on random cables, each scaled so that its
-   RMS on its weakest cable, measured against the same robot and trajectory without the
-   effect (balanced too), is a log-uniform draw in 3-10 x the 0.1 N noise.
+   (:data:`cablesvc.bench.truth.OOL_EFFECTS`) on random cables, each scaled so that what
+   it leaves for a perfect baseline (the measured force minus the truth law without the
+   effect, on the elongation computed from the recording) has an RMS on its weakest
+   cable that is a log-uniform draw in 3-10 x the 0.1 N noise (one pilot run at the
+   effect's reference magnitude, re-checked for the non-linear ones).
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ from cablesvc.bench.truth import (
     CableVariant,
     EquilibriumRun,
     OolEffect,
+    cable_law,
     draw_variant,
     equilibrium_run,
     solve_ik,
@@ -272,8 +275,15 @@ def _draw_effect(name: str, m: int, rng: np.random.Generator) -> tuple[tuple[int
     return cables, ref, opts
 
 
-def _effect_rms(meas: np.ndarray, base: np.ndarray, cables: tuple[int, ...]) -> float:
-    d = meas - base
+def _effect_rms(run: EquilibriumRun, sr: SimRobot, tr: _Traj, cables: tuple[int, ...]) -> float:
+    """What the effect leaves for a perfect baseline: the RMS, on its weakest cable, of the
+    measured force (noise-free) minus the truth law *without* the effect run on the
+    elongation every tool computes from the recording (l(recorded pose) from the robot
+    file, minus the recorded motor length) [N]. Comparing forces with those of the run
+    without the effect would instead count the platform's equilibrium shift, which moves a
+    cable effect onto the other cables and which any baseline sees in the pose."""
+    x = solve_ik(sr.geom, run.position, run.orientation).length - tr.motor_length
+    d = run.measured - cable_law(sr.variant, x, 1.0 / RATE)
     return float(np.min(np.sqrt(np.mean(d[:, list(cables)] ** 2, axis=0))))
 
 
@@ -304,13 +314,12 @@ def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Option
         p = POWER.get(name, 1.0)
         # pilots start from the balanced pose without the effect and take one sweep (a
         # small correction); the case itself is balanced to the tolerance
-        e0 = _effect_rms(_run(sr, tr, [_make_effect(name, ref, cables, opts)], base, PILOT_SWEEPS).measured,
-                         base.measured, cables)
+        e0 = _effect_rms(_run(sr, tr, [_make_effect(name, ref, cables, opts)], base, PILOT_SWEEPS), sr, tr, cables)
         mag = ref * (target / max(e0, 1e-12)) ** (1.0 / p)
         e1 = target
         for _ in range(3 if name in NONLINEAR else 0):
-            e1 = _effect_rms(_run(sr, tr, [_make_effect(name, mag, cables, opts)], base, PILOT_SWEEPS).measured,
-                             base.measured, cables)
+            e1 = _effect_rms(_run(sr, tr, [_make_effect(name, mag, cables, opts)], base, PILOT_SWEEPS), sr, tr,
+                             cables)
             if abs(e1 / target - 1.0) < 0.15:
                 break
             mag = mag * (target / max(e1, 1e-12)) ** (1.0 / p)

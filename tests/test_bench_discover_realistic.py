@@ -1,0 +1,148 @@
+"""Realistic discovery bench: the second simulator (cablesvc/bench/truth.py) and its cases
+(cablesvc/bench/discover_cases.py). Real components throughout: the twin's effect classes,
+the identification the CLI calls, discovery's own signal builder."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from cablesvc.bench.discover_cases import (
+    NOISE,
+    calibrated_robot,
+    case_plan,
+    make_realistic_case,
+)
+from cablesvc.bench.truth import OOL_EFFECTS, apply_effects, equilibrium_run
+
+
+def _perfect_residual(case):
+    """Measured force minus the truth law without effects, on the elongation every tool
+    computes from the recording (what a perfect baseline would leave) (N, m) [N]."""
+    from cablesvc.bench.truth import cable_law, solve_ik
+    rec = case.recording
+    x = solve_ik(case.robot.geom, rec.position, rec.orientation).length - rec.motor_length
+    return rec.force - cable_law(case.robot.variant, x, float(rec.t[1] - rec.t[0]))
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return calibrated_robot(0, 991)
+
+
+@pytest.fixture(scope="module")
+def control(robot):
+    return make_realistic_case("control", [], 17, robot=robot)
+
+
+def test_calibration_fits_but_baseline_is_honestly_wrong(robot, control):
+    from cablesvc.discover.pipeline import build_signals
+    # the 002 Sec 4 calibration is fitted about as well as a user sees it: near the noise
+    assert np.all(robot.calib_rmse < 1.5 * NOISE), robot.calib_rmse
+    assert "truth" not in robot.calib.metadata and "truth" not in control.recording.metadata
+    # on an effect-free trajectory the identified baseline is wrong: the working point
+    # (40-380 N, centimetre moves) is far from the calibration's (60 N, +-1.5 mm)
+    s = build_signals(control.recording, robot.robot, control.baseline)
+    rms = np.sqrt(np.mean((s.y - s.f0) ** 2, axis=0))
+    assert np.median(rms) > 1.5 * NOISE, rms
+    assert s.y.min() < 120.0 and s.y.max() > 250.0
+
+
+def test_true_forces_balance_and_a_sensor_offset_breaks_the_balance(robot, control):
+    # without effects the true (and noise-free measured) forces balance the platform
+    assert control.wrench["true_force_N"] < 0.01
+    assert control.wrench["measured_noise_free_N"] < 0.01
+    off = make_realistic_case("single", ["offset_gain"], 17, robot=robot, rng=np.random.default_rng(3))
+    assert off.wrench["true_force_N"] < 0.01
+    assert off.wrench["measured_noise_free_N"] > 30 * off.wrench["true_force_N"] + 0.2
+    # a cable effect (creep) changes the cable, not the sensor: still balanced
+    cr = make_realistic_case("single", ["creep"], 17, robot=robot, rng=np.random.default_rng(4))
+    assert cr.wrench["measured_noise_free_N"] < 0.01
+    cs = cr.truth["cables"]
+    assert np.min(np.sqrt(np.mean(_perfect_residual(cr)[:, cs] ** 2, axis=0))) > 2.5 * NOISE
+
+
+def test_prescribed_pose_does_not_balance(robot, control):
+    """What the twin does (the pose held where commanded) leaves the truth unbalanced: the
+    equilibrium correction is what makes the forces balance."""
+    from cablesvc.bench.discover_cases import _trajectory
+    tr = _trajectory(robot, 17, np.random.default_rng([17, 77]))
+    held = equilibrium_run(robot.geom, robot.variant, [], [], t=tr.t, dt=tr.t[1] - tr.t[0], position=tr.position,
+                           orientation=tr.orientation, motor_length=tr.motor_length, temperature=tr.temperature,
+                           balance=False)
+    r = np.sqrt(np.mean(np.sum(held.residual[:, :3] ** 2, axis=1)))
+    assert r > 100 * control.wrench["true_force_N"] and r > 1.0
+
+
+@pytest.mark.parametrize("name", sorted(OOL_EFFECTS))
+def test_out_of_library_effects_change_the_forces(robot, control, name):
+    case = make_realistic_case("ool", [name], 17, robot=robot, rng=np.random.default_rng(5))
+    cables = case.truth["cables"]
+    assert case.truth["ool"] and cables
+    # a perfect baseline (the truth law itself) is left with the effect on its cables,
+    # and with only the noise on the control
+    rms = np.sqrt(np.mean(_perfect_residual(case) ** 2, axis=0))
+    rms0 = np.sqrt(np.mean(_perfect_residual(control) ** 2, axis=0))
+    assert np.all(rms0 < 1.2 * NOISE), rms0
+    assert np.min(rms[cables]) > 2.5 * NOISE, rms
+    # scaled to 3-10 x the noise on its weakest cable
+    assert 2.7 * NOISE < case.effect_rms[name] < 11 * NOISE
+    assert case.wrench["true_force_N"] < 0.01 or name == "anchor"   # a wrong anchor: the file's geometry is off
+    if name == "anchor":
+        mm = 1e3 * case.effects[0].magnitude
+        assert 0.02 < mm < 1.0
+
+
+def test_effects_reused_from_the_twin_match_it():
+    """apply_effects runs the twin's own effect classes, vectorised: same forces as the twin."""
+    from cablesvc.simulate import TruthConfig, effect_from_spec, simulate_twin
+    specs = ["sag:0.3@1,2", "creep:2@0", "temperature:-0.01@3", "pulley:0.02@4,5", "viscous:800@6",
+             "offset_gain:1.5@7"]
+    run = simulate_twin("ipanema3", "trajectory", truth=TruthConfig(effects=[effect_from_spec(s) for s in specs],
+                                                                    noise_std=0.0), rate=100.0, duration=5, seed=3)
+    f, meas = apply_effects([effect_from_spec(s) for s in specs], run.output.base_force, t=run.plan.t, dt=0.01,
+                            x=run.output.x_in, motor_length=run.recording.motor_length, wrap_angle=run.wrap_angle,
+                            free_length=run.free_length, temperature=run.recording.temperature,
+                            has_pulley=np.asarray(run.truth.geom.has_pulley), stiffness=run.truth.stiffness)
+    np.testing.assert_allclose(f, run.output.force, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(meas, run.output.measured, rtol=0, atol=1e-9)
+
+
+def test_case_plan():
+    plan = case_plan(40, 5, fleet=4)
+    kinds = [p.kind for p in plan]
+    assert len(plan) == 140
+    assert [kinds.count(k) for k in ("single", "pair", "control", "ool")] == [40, 40, 40, 20]
+    singles = [p.names[0] for p in plan if p.kind == "single"]
+    from cablesvc.simulate import EFFECTS
+    assert all(singles.count(n) >= 5 for n in EFFECTS)
+    ool = [p.names[0] for p in plan if p.kind == "ool"]
+    assert all(ool.count(n) >= 6 for n in OOL_EFFECTS)
+    assert all(len(set(p.names)) == 2 for p in plan if p.kind == "pair")
+    assert {p.robot_index for p in plan} == {0, 1, 2, 3}
+
+
+def test_ool_scoring():
+    from cablesvc.bench.discover import _ool_ok
+    from cablesvc.discover.pipeline import Finding
+    f = lambda cs: Finding(term="pulley", label="", equation="", variable="", cables=cs, r={}, raw_r={}, params={})
+    assert _ool_ok([], [{"cables": [2]}], [2])
+    assert _ool_ok([f([2])], [], [2, 6])
+    assert not _ool_ok([f([2, 3])], [], [2, 6])          # a term on a cable the effect is not on
+    assert not _ool_ok([f([2]), f([6])], [], [2, 6])     # two terms
+    assert not _ool_ok([], [], [2])                      # nothing reported at all
+
+
+def test_ideal_mode_keeps_its_keys():
+    out = subprocess.run([sys.executable, "-m", "cablesvc", "bench", "discover", "--ideal", "--cases", "1",
+                          "--seed", "3", "--json"], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    res = json.loads(out.stdout)
+    for k in ("cases", "single_correct", "single_total", "pair_correct", "pair_total", "control_false",
+              "control_total", "median_rmse_reduction", "confusion", "per_case", "seconds"):
+        assert k in res
+    assert res["mode"] == "ideal" and res["cases"] == 3 and res["ool_total"] == 0
