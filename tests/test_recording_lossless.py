@@ -122,6 +122,21 @@ def test_recorder_close_gives_up_on_a_stalled_disk_and_counts_what_is_missing(tm
     _drain(rfd, 0.0, bytearray()).join(30)           # let the writer thread finish
 
 
+def test_a_hung_disk_does_not_hang_a_replay_loop(tmp_path: Path):
+    """A replay's loop waits for room in the recorder's queue, but not for ever: a writer
+    that takes nothing for the stall time turns waiting into dropping (counted), so the loop,
+    and with it the shutdown that needs the loop's lock, goes on."""
+    fifo, rfd = _slow_disk(tmp_path)
+    rec = Recorder(fifo, "ipanema3", {}, 8, block=True, stall_s=1.0)
+    t0 = time.monotonic()
+    for tick in _ticks(10_000):
+        rec.put((tick, {"robot": "ipanema3"}, ()))
+    assert time.monotonic() - t0 < 15
+    assert rec.dropped > 0 and rec.handed == 10_000
+    assert rec.close() == 10_000 - rec.written > 0
+    _drain(rfd, 0.0, bytearray()).join(30)
+
+
 def test_replay_into_a_small_record_queue_loses_nothing(tmp_path: Path, replay_file):
     """A replay at --speed 0 produces ticks faster than the disk takes them: the loop waits
     for the recorder (a replay has no deadline) instead of dropping from the full queue."""
