@@ -230,12 +230,17 @@ def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Opti
         if unexplained:
             row["unexplained"] = row.get("unexplained", 0) + 1
         rb = np.asarray(getattr(d, "rmse_before", []), float)
+        ra = np.asarray(getattr(d, "rmse_after", []), float)
+        after = float(np.sqrt(np.mean(ra[affected] ** 2)) / RN) if affected and ra.size else None
+        unexpl_cables = sorted({int(c) for u in unexplained if isinstance(u, dict) for c in u.get("cables", [])})
         per_case.append({"kind": spec.kind, "seed": spec.seed, "robot": spec.robot_index,
                          "truth": [e.describe() for e in case.effects], "truth_cables": affected,
                          "effect_rms": case.effect_rms, "named": {f.term: list(f.cables) for f in findings},
                          "unexplained": [{"cables": list(u.get("cables", []))} if isinstance(u, dict) else str(u)
                                          for u in unexplained],
+                         "unexplained_on_truth_cables": bool(set(unexpl_cables) & set(affected)),
                          "correct": ok, "both_named": set(truth) <= set(named), "rmse_reduction": red,
+                         "test_rmse_after_over_noise": after,
                          "baseline_rmse_over_noise": (rb / RN).tolist() if rb.size else None,
                          "wrench_rms": case.wrench, "seconds": {"simulate": case.seconds["simulate"],
                                                                 "discover": td}})
@@ -247,6 +252,7 @@ def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Opti
     ctrl = [c for c in per_case if c["kind"] == "control"]
     ool = [c for c in per_case if c["kind"] == "ool"]
     reds = [c["rmse_reduction"] for c in per_case if c["rmse_reduction"] is not None]
+    afters = [c["test_rmse_after_over_noise"] for c in per_case if c["test_rmse_after_over_noise"] is not None]
     ctrl_b = [float(np.sqrt(np.mean(np.square(c["baseline_rmse_over_noise"])))) for c in ctrl
               if c["baseline_rmse_over_noise"]]
     n = max(1, len(per_case))
@@ -258,6 +264,9 @@ def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Opti
         "control_false": sum(not c["correct"] for c in ctrl), "control_total": len(ctrl),
         "ool_total": len(ool), "ool_unexplained": sum(c["correct"] for c in ool),
         "ool_reported_unexplained": sum(bool(c["unexplained"]) for c in ool),
+        "ool_unexplained_on_cables": sum(c["unexplained_on_truth_cables"] for c in ool),
+        "control_unexplained": sum(bool(c["unexplained"]) for c in ctrl),
+        "median_test_rmse_after_over_noise": float(np.median(afters)) if afters else None,
         "median_rmse_reduction": float(np.median(reds)) if reds else None,
         "control_baseline_rms_over_noise": float(np.median(ctrl_b)) if ctrl_b else None,
         "confusion": conf, "labels": sorted(conf), "per_case": per_case,
@@ -318,9 +327,14 @@ def _main_realistic(args) -> int:
           f"(both among those named: {res['pair_both_named']})")
     print(f"false findings in controls:         {pct(res['control_false'], res['control_total'])}")
     print(f"out-of-library handled:             {pct(res['ool_unexplained'], res['ool_total'])} "
-          f"(unexplained residual reported: {res['ool_reported_unexplained']})")
+          f"(unexplained residual reported: {res['ool_reported_unexplained']}, on the effect's cables: "
+          f"{res['ool_unexplained_on_cables']})")
+    print(f"controls with an unexplained residual reported: {pct(res['control_unexplained'], res['control_total'])}")
     mr = res["median_rmse_reduction"]
     print("median held-out RMSE reduction on affected cables: " + ("-" if mr is None else f"{mr:.1%}"))
+    ma = res["median_test_rmse_after_over_noise"]
+    if ma is not None:
+        print(f"median test RMSE after discovery on affected cables: {ma:.2f} x the noise")
     cb = res["control_baseline_rms_over_noise"]
     if cb is not None:
         print(f"identified baseline on controls: test RMS residual {cb:.1f} x the noise (median)")

@@ -645,6 +645,8 @@ def equilibrium_run(geom: RobotGeometry, variant: CableVariant, effects: list[Ef
             x = x + o.length_error(ml, ik.unit, prev)
         return ik, x
 
+    if mount:                                  # the mount's first load: the backbone without its deflection
+        prev = backbone_force(variant, exact(P, Q, None)[1])
     while True:
         ik, x = exact(P, Q, prev)
         fb = cable_law(variant, x, dt)
