@@ -8,10 +8,13 @@ One loop in one thread does, per input tick::
     publisher.publish_forces(...)           # cablesvc/<robot>/forces
     publisher.publish_alarm(...)            # cablesvc/<robot>/alarms (raise / clear)
 
-Everything slower or optional runs beside the loop, never in it: the MCAP recorder is a
-writer thread fed by a bounded queue (a full queue drops and counts, it never blocks the
-loop), the status queryable builds its answer from counters the loop updates, the
-terminal view reads a copy made ten times a second, and snapshots of the hysteresis
+Everything slower or optional runs beside the loop, never in it: the recorder (MCAP or
+CSV, by the --record suffix) is a writer thread fed by a bounded queue (for a live source
+a full queue drops and counts, it never blocks the loop; a replay, which has no deadline,
+waits for room instead, so that every accepted tick is recorded; at shutdown the queue is
+written out, and any tick missing from the file makes the exit status non-zero), the
+status queryable builds its answer from counters the loop updates, the terminal view
+reads a copy made ten times a second, and snapshots of the hysteresis
 state are written atomically (temporary file, fsync, rename) every few seconds and at
 shutdown, and restored at start when they belong to the same robot and parameters.
 
