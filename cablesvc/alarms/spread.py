@@ -103,7 +103,8 @@ _STATE_NAMES = {_ACTIVE: "active", _RAISE_SINCE: "raise_since", _CLEAR_SINCE: "c
 # parameters
 (_P_WARMUP, _P_MEAN_TAU, _P_TAU, _P_RAISE, _P_CLEAR, _P_RAISE_HOLD, _P_CLEAR_HOLD, _P_FLOOR_MIN,
  _P_MAX_DT) = range(9)
-# event record columns (row and cable first, as ResidualDetector reads them): row, cable, action (+1 raise, -1 clear), since, spread [N], floor [N]
+# event record columns (row and cable first, as ResidualDetector reads them): row, cable,
+# action (+1 raise, -1 clear), since, spread [N], floor [N]
 (_E_ROW, _E_CABLE, _E_ACTION, _E_SINCE, _E_SPREAD, _E_FLOOR) = range(6)
 _NE = 6
 
