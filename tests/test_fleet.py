@@ -200,7 +200,7 @@ def test_fleet_config_errors_name_the_file_and_the_entry(tmp_path: Path):
         "tcp/127.0.0.1:7999",)
     assert [p.where for p in plans] == ["robots[0]", "robots[1]"]
     assert plans[1].options.source["path"] == str(p4) and plans[1].source is not None
-    assert plans[0].options.snapshot != plans[1].options.snapshot
+    assert plans[0].options.snapshot is None and plans[1].options.snapshot is None   # replays: no default state file
 
     cases = [
         (entry("ipanema3", rec) + entry("ipanema3", rec, 'snapshot = "b.npz"'),

@@ -21,7 +21,9 @@ Configuration is an :class:`AlarmConfig`, in TOML a table with four sub-tables::
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -152,6 +154,27 @@ class AlarmManager:
             "active": np.array(json.dumps([e.payload() for e in self._active.values()])),
             "counters": np.array(json.dumps(self.counters)),
         }
+
+    def rebase_time(self, delta: float) -> None:
+        """Move every restored time (alarm ``since`` and ``t``, hold and warm-up timers, the
+        detectors' last-sample times) by ``delta`` [s] into this session's time base: after a
+        restore, ``delta`` = the first tick's t - the snapshot's last t, so that an alarm keeps
+        its age (the downtime is not counted) whatever the controller clock did meanwhile
+        (also when it restarted from 0). NaN (no timer) stays NaN."""
+        from cablesvc.alarms import drift, spread
+
+        if not math.isfinite(delta) or delta == 0.0:
+            return
+        for det, rows in ((self.drift, (drift._W_T0, drift._T_LAST, drift._CU_T0, drift._CL_T0, drift._RAISE_SINCE,
+                                        drift._CLEAR_SINCE, drift._SINCE)),
+                          (self.spread, (spread._W_T0, spread._T_LAST, spread._RAISE_SINCE, spread._CLEAR_SINCE,
+                                         spread._SINCE))):
+            det._S[list(rows)] += delta
+        self.state.rebase_time(delta)
+        for key, e in list(self._active.items()):
+            self._active[key] = dataclasses.replace(
+                e, t=e.t + delta if e.t is not None else None,
+                since=e.since + delta if e.since is not None else None)
 
     def _enabled(self, code: str | None) -> bool:
         """Whether the detector of alarm ``code`` runs with this manager's config."""

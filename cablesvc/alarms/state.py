@@ -317,6 +317,11 @@ class StateAlarms:
         """Alarm states (active, pending since, ...) per channel, numeric only."""
         return {"state": self._ST.copy()}
 
+    def rebase_time(self, delta: float) -> None:
+        """Move the restored timers (pending raise / clear, active since) by ``delta`` [s]
+        into the current session's time base (see AlarmManager.rebase_time)."""
+        self._ST[_RAISE_SINCE:] += delta
+
     def enabled(self, kind: str) -> bool:
         """Whether alarm ``kind`` (one of slack, over_limit, amplitude_range,
         wrench_residual) runs with this config (amplitude_range also needs a known range)."""

@@ -34,7 +34,9 @@ and --zenoh-config FILE for a router, TLS or access control (deploy/zenoh-router
 
 Key expressions: cablesvc/<robot>/forces, cablesvc/<robot>/alarms, cablesvc/<robot>/status
 (queryable), cablesvc/<robot>/alive (liveliness). SIGINT/SIGTERM shut down cleanly; the
-hysteresis state is snapshotted every few seconds and at shutdown and restored at start.
+hysteresis state is snapshotted every few seconds and at shutdown and restored at start
+when it belongs to the same input and the first tick agrees with it (live sources only by
+default: a replay or the embedded simulator uses a state file only when given --snapshot).
 
 Several robots in one daemon (a fleet): a --config file with [[robots]] tables, one per
 robot, each with its own robot, params, [robots.source], record, snapshot, [robots.alarms];
@@ -100,7 +102,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
                                                         "(opens in Foxglove), OUT.csv the inputs only; an existing "
                                                         "file is kept unless --overwrite is given")
     o.add_argument("--overwrite", action="store_true", help="let --record replace an existing file")
-    o.add_argument("--snapshot", help="hysteresis state file (default ~/.local/state/cablesvc/<robot>.state.npz)")
+    o.add_argument("--snapshot", help="hysteresis state file (default for --source can / modbus: "
+                                      "~/.local/state/cablesvc/<robot>.state.npz; replays and the simulator: none)")
     o.add_argument("--no-snapshot", action="store_true", help="neither restore nor write the hysteresis state")
     o.add_argument("--snapshot-interval", type=float, default=None, help="seconds between snapshots (default 5)")
     o.add_argument("--wait-subscriber", type=float, default=0.0, metavar="S",
@@ -174,6 +177,14 @@ def sim_rate_problem(rate: Any, n_cables: int) -> str | None:
                 "(half a tick at its fastest measured 53 us per tick; cablesvc/cli/limits.py)")
     return memory_problem(f"rate {rate:g} Hz x the {SIM_CONTROLLER_SECONDS:g} s the simulated controller precomputes",
                           twin_bytes(rate * SIM_CONTROLLER_SECONDS, n_cables))
+
+
+def sim_source_id(robot_name: str) -> str:
+    """The snapshot identity of an embedded simulated controller: a new one at every start
+    (it starts from rest), so no later start restores its state."""
+    import uuid
+
+    return f"sim:{robot_name}:{uuid.uuid4().hex}"
 
 
 def source_config(args, cfg: dict[str, Any], robot_name: str) -> dict[str, Any]:
@@ -440,7 +451,9 @@ def plan_fleet(args, cfg: dict[str, Any], file: str) -> tuple[dict[str, Any], li
             raise FleetConfigError(f"{where}.snapshot_interval: expected seconds > 0, got {interval!r}")
         snapshot = None
         if not args.no_snapshot:
-            snapshot = Path(e.get("snapshot") or default_snapshot_path(robot.name))
+            live = src["kind"] not in ("sim", "replay")        # the default file is the live robot's
+            snapshot = e.get("snapshot") or (default_snapshot_path(robot.name) if live else None)
+            snapshot = Path(snapshot) if snapshot else None
         record = Path(e["record"]) if e.get("record") else None
         opts = DaemonOptions(robot=robot, params=params, source=src, encoding=shared["encoding"],
                              zenoh_config_file=shared["zenoh_config_file"], listen=shared["listen"],
@@ -482,6 +495,7 @@ def plan_fleet(args, cfg: dict[str, Any], file: str) -> tuple[dict[str, Any], li
             raise FleetConfigError(f"{file}: {plan.where}.source (sim): {ex}") from None
         plan.controller = controller
         plan.options.source = can_src
+        plan.options.source_id = sim_source_id(plan.options.robot.name)
     return shared, plans
 
 
@@ -560,7 +574,11 @@ def _cmd_run(args) -> int:
         return 2
     snapshot = None
     if not args.no_snapshot:
-        snapshot = Path(args.snapshot or cfg.get("snapshot") or default_snapshot_path(robot.name))
+        # the default state file is the live robot's: a replay or the embedded simulator (a
+        # new simulated controller at every start) uses one only when given one
+        live = controller is None and src["kind"] != "replay"
+        snapshot = args.snapshot or cfg.get("snapshot") or (default_snapshot_path(robot.name) if live else None)
+        snapshot = Path(snapshot) if snapshot else None
     alarm_cfg = None
     if "alarms" in cfg:
         from cablesvc.alarms import AlarmConfig
@@ -578,6 +596,7 @@ def _cmd_run(args) -> int:
         alarm_config=alarm_cfg,
         wait_subscriber_s=args.wait_subscriber,
         record_overwrite=bool(getattr(args, "overwrite", False)),
+        source_id=None if controller is None else sim_source_id(robot.name),
     )
     stop = threading.Event()
 
