@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any, Optional
 
 import numpy as np
+from scipy.linalg import solve_triangular
 from scipy.optimize import lsq_linear, minimize_scalar
 
 from cablesvc.discover.terms import Design, Signals, Term
@@ -111,11 +112,26 @@ def _bounded_lstsq(X: np.ndarray, y: np.ndarray, lo: np.ndarray, hi: np.ndarray)
     sc = np.sqrt(np.sum(X * X, axis=0))
     sc[sc == 0] = 1.0
     Xs = X / sc
-    p, *_ = np.linalg.lstsq(Xs, y, rcond=None)
-    p = p / sc
+    # normal equations of the column-scaled problem (a few columns, thousands of ticks):
+    # G = L L^T, and the bounded problem is solved on the p x p triangle (same objective
+    # up to a constant), far cheaper than an SVD or BVLS on all ticks
+    G = Xs.T @ Xs
+    b = Xs.T @ y
+    try:
+        L = np.linalg.cholesky(G + np.eye(G.shape[0]) * 1e-12 * max(float(np.trace(G)), 1e-300))
+        if np.min(np.abs(np.diag(L))) < 1e-7 * np.max(np.abs(np.diag(L))):
+            raise np.linalg.LinAlgError("ill-conditioned")
+    except np.linalg.LinAlgError:
+        p, *_ = np.linalg.lstsq(Xs, y, rcond=None)
+        p = p / sc
+        if np.all(p >= lo - 1e-15) and np.all(p <= hi + 1e-15):
+            return p
+        return lsq_linear(Xs, y, bounds=(lo * sc, hi * sc), method="bvls").x / sc
+    z = solve_triangular(L, b, lower=True)
+    p = solve_triangular(L.T, z, lower=False) / sc
     if np.all(p >= lo - 1e-15) and np.all(p <= hi + 1e-15):
         return p
-    res = lsq_linear(Xs, y, bounds=(lo * sc, hi * sc), method="bvls")
+    res = lsq_linear(L.T, z, bounds=(lo * sc, hi * sc), method="bvls")
     return res.x / sc
 
 
@@ -247,6 +263,11 @@ class SelectOptions:
     max_terms: int = 3
     prune: bool = True
     swap: bool = True
+    #: count the validation and training ticks at their AR(1) effective number,
+    #: n (1 - rho) / (1 + rho), rho the lag-one correlation of the cable's current
+    #: validation residual (a smooth residual of an imperfect baseline carries far fewer
+    #: independent samples than ticks; Newey & West 1987)
+    effective_n: bool = False
 
 
 @dataclass
@@ -271,6 +292,8 @@ class Selection:
     fits: dict[int, Fit]
     steps: list[Step]
     baseline_valid_mse: dict[int, float]
+    #: names of the base terms on every cable (the recalibration nuisance): not findings
+    base: tuple[str, ...] = ()
 
     def named(self) -> dict[str, list[int]]:
         """Term name -> cables it was chosen on (in the order terms were added)."""
@@ -279,7 +302,8 @@ class Selection:
             out.setdefault(st.term, [])
         for c, f in sorted(self.fits.items()):
             for n in f.names:
-                out.setdefault(n, []).append(c)
+                if n not in self.base:
+                    out.setdefault(n, []).append(c)
         return {k: sorted(set(v)) for k, v in out.items() if v}
 
 
@@ -288,6 +312,24 @@ class ForwardSelector:
 
     def __init__(self, options: Optional[SelectOptions] = None):
         self.options = options or SelectOptions()
+        self._base: set[str] = set()
+
+    def _eff(self, r: np.ndarray, f: Fit, valid: np.ndarray, c: int) -> float:
+        """(1 - rho) / (1 + rho) of the validation residual of fit ``f`` on cable ``c``
+        (lag-one pairs inside the validation blocks only); 1 without ``effective_n``."""
+        if not self.options.effective_n:
+            return 1.0
+        e = r[:, c] - f.pred
+        idx = np.flatnonzero(valid[1:] & valid[:-1])
+        a, b = e[idx], e[idx + 1]
+        a, b = a - a.mean(), b - b.mean()
+        d = math.sqrt(float(a @ a) * float(b @ b))
+        rho = float(np.clip(a @ b / d, 0.0, 0.999)) if d > 0 else 0.0
+        return (1.0 - rho) / (1.0 + rho)
+
+    def _n(self, fit: Fit) -> int:
+        """Candidate terms on a fit (the base terms do not count against ``max_terms``)."""
+        return sum(1 for t in fit.terms if t.name not in self._base)
 
     def _accept(self, old: float, new: float, p: int, n_v: int, n_tr: int, var: float = 0.0) -> float:
         """Penalised gain (> 0 when the term counts), 0 otherwise."""
@@ -323,12 +365,14 @@ class ForwardSelector:
             best = None
             owner = next((t for t in terms if t.owns_nuisance and t.applies(s, c)), None)
             for u in cur.terms:
+                if u.name in self._base:
+                    continue
                 rest = [v for v in cur.terms if v.name != u.name]
                 # u is replaced by one unselected term w; when u carries the generic gain and
                 # its owner is absent, also by w together with that owner (the gain u took
                 # goes back to offset_gain, the rest to w)
                 options = [[w] for w in terms if w.name not in cur.names and w.applies(s, c)]
-                if u.nuisance and owner is not None and owner.name not in cur.names and len(cur.terms) < o.max_terms:
+                if u.nuisance and owner is not None and owner.name not in cur.names and self._n(cur) < o.max_terms:
                     options += [[owner, w[0]] for w in options if w[0].name != owner.name]
                 for add in options:
                     w = add[-1]
@@ -358,7 +402,7 @@ class ForwardSelector:
         while changed and len(fits[c].terms) >= 1:
             changed = False
             for u in list(fits[c].terms):
-                if u.name == keep:
+                if u.name == keep or u.name in self._base:
                     continue
                 rest = [v for v in fits[c].terms if v.name != u.name]
                 f = fit_terms(s, c, r[:, c], rest, train, hypers=[fits[c].hyper[v.name] for v in rest], cache=cache)
@@ -372,16 +416,21 @@ class ForwardSelector:
         return pruned
 
     def select(self, s: Signals, r: np.ndarray, terms: list[Term], train: np.ndarray,
-               valid: np.ndarray, noise: Optional[np.ndarray] = None) -> Selection:
-        """``noise`` (m,) [N]: the sensor-noise std per cable (None: no absolute floor)."""
+               valid: np.ndarray, noise: Optional[np.ndarray] = None,
+               base: Optional[list[Term]] = None) -> Selection:
+        """``noise`` (m,) [N]: the sensor-noise std per cable (None: no absolute floor).
+        ``base``: terms fitted on every cable from the start and never pruned or swapped
+        (the baseline's recalibration nuisance): candidates must improve on them."""
         o = self.options
         m = r.shape[1]
         var = np.zeros(m) if noise is None else np.asarray(noise, float) ** 2
         n_v, n_tr = int(valid.sum()), int(train.sum())
         cache = _Cache()
-        fits = {c: fit_terms(s, c, r[:, c], [], train, cache=cache) for c in range(m)}
-        mse = {c: float(np.mean(r[valid, c] ** 2)) for c in range(m)}
+        self._base = {t.name for t in (base or [])}
+        fits = {c: fit_terms(s, c, r[:, c], list(base or []), train, cache=cache) for c in range(m)}
+        mse = {c: self._mse(r, fits[c], valid, c) for c in range(m)}
         base_mse = dict(mse)
+        eff = {c: self._eff(r, fits[c], valid, c) for c in range(m)}
         steps: list[Step] = []
         for _ in range(o.max_terms * m):
             best = None
@@ -390,14 +439,15 @@ class ForwardSelector:
                 score, sig, new_fits = 0.0, [], {}
                 for c in range(m):
                     cur = fits[c]
-                    if t.name in cur.names or len(cur.terms) >= o.max_terms or not t.applies(s, c):
+                    if t.name in cur.names or self._n(cur) >= o.max_terms or not t.applies(s, c):
                         continue
                     f = fit_terms(s, c, r[:, c], cur.terms + [t], train,
                                   hypers=[cur.hyper[u.name] for u in cur.terms] + [None], cache=cache,
                                   passes=2 if any(u.n_hyper for u in cur.terms) else 1)
                     new = self._mse(r, f, valid, c)
-                    g = self._accept(mse[c], new, n_fitted(f, t), n_v, n_tr, var[c])
-                    if g > 0 and self._specific(s, c, r, cur, t, new, train, valid, cache, n_v, n_tr, var[c]):
+                    nv, nt = max(2, int(n_v * eff[c])), max(2, int(n_tr * eff[c]))
+                    g = self._accept(mse[c], new, n_fitted(f, t), nv, nt, var[c])
+                    if g > 0 and self._specific(s, c, r, cur, t, new, train, valid, cache, nv, nt, var[c]):
                         score += g
                         sig.append(c)
                         new_fits[c] = (f, new)
@@ -413,10 +463,13 @@ class ForwardSelector:
                 fits[c], mse[c] = new_fits[c]
             if o.prune:
                 for c in sig:
-                    step.pruned += self._prune(s, c, r, fits, mse, train, valid, cache, n_v, n_tr, var[c], keep=t.name)
+                    nv, nt = max(2, int(n_v * eff[c])), max(2, int(n_tr * eff[c]))
+                    step.pruned += self._prune(s, c, r, fits, mse, train, valid, cache, nv, nt, var[c], keep=t.name)
                     if o.swap:
-                        for a, b in self._swap(s, c, r, fits, mse, terms, train, valid, cache, n_v, n_tr, var[c]):
+                        for a, b in self._swap(s, c, r, fits, mse, terms, train, valid, cache, nv, nt, var[c]):
                             step.swapped.append((c, a, b))
-                        step.pruned += self._prune(s, c, r, fits, mse, train, valid, cache, n_v, n_tr, var[c])
+                        step.pruned += self._prune(s, c, r, fits, mse, train, valid, cache, nv, nt, var[c])
+            for c in sig:
+                eff[c] = self._eff(r, fits[c], valid, c)
             steps.append(step)
-        return Selection(fits=fits, steps=steps, baseline_valid_mse=base_mse)
+        return Selection(fits=fits, steps=steps, baseline_valid_mse=base_mse, base=tuple(sorted(self._base)))
