@@ -38,7 +38,7 @@ SINGLE = [
 
 @pytest.mark.parametrize("spec,name,cables", SINGLE, ids=[s[1] for s in SINGLE])
 def test_single_effect_named_on_its_cables(spec, name, cables):
-    d = discover(_rec([spec]), ROBOT)
+    d = discover(_rec([spec]), ROBOT, exact_baseline=True)
     assert d.named == [name]
     assert d.findings[0].cables == cables
     assert d.reduction(cables) > 0.5
@@ -46,7 +46,7 @@ def test_single_effect_named_on_its_cables(spec, name, cables):
 
 
 def test_control_adds_nothing_and_says_so():
-    d = discover(_rec([]), ROBOT)
+    d = discover(_rec([]), ROBOT, exact_baseline=True)
     assert d.findings == []
     assert not d.significant
     assert any("nothing significant" in line for line in d.summary())
@@ -55,18 +55,18 @@ def test_control_adds_nothing_and_says_so():
 
 
 def test_pair_both_named():
-    d = discover(_rec(["creep:1.0@1", "viscous:8000@1,5"], seed=4), ROBOT)
+    d = discover(_rec(["creep:1.0@1", "viscous:8000@1,5"], seed=4), ROBOT, exact_baseline=True)
     assert sorted(d.named) == ["creep", "viscous"]
 
 
 def test_offset_on_pulley_cables_is_not_taken_for_a_pulley_gain():
     # the offset sits on cables with a pulley: the pulley's own gain column must not take it
-    d = discover(_rec(["offset_gain:-0.4@2,3", "pulley:0.002@5"], seed=5), ROBOT)
+    d = discover(_rec(["offset_gain:-0.4@2,3", "pulley:0.002@5"], seed=5), ROBOT, exact_baseline=True)
     assert sorted(d.named) == ["offset_gain", "pulley"]
 
 
 def test_deadtime_and_pulley_on_one_cable():
-    d = discover(_rec(["deadtime:0.1@4", "pulley:0.0015@4"], seed=6), ROBOT)
+    d = discover(_rec(["deadtime:0.1@4", "pulley:0.0015@4"], seed=6), ROBOT, exact_baseline=True)
     assert sorted(d.named) == ["deadtime", "pulley"]
 
 
@@ -114,16 +114,16 @@ def test_truth_metadata_is_not_read(tmp_path):
     assert "truth" in rec.metadata
     blind = rec.slice(0, None)
     blind.metadata = {k: v for k, v in rec.metadata.items() if k != "truth"}
-    a = discover(rec, ROBOT).to_json()
-    b = discover(blind, ROBOT).to_json()
-    c = discover(tmp_path / "r.mcap", ROBOT).to_json()
+    a = discover(rec, ROBOT, exact_baseline=True).to_json()
+    b = discover(blind, ROBOT, exact_baseline=True).to_json()
+    c = discover(tmp_path / "r.mcap", ROBOT, exact_baseline=True).to_json()
     for doc in (b, c):
         assert doc["findings"] == a["findings"]
         assert doc["rmse_test_after"] == pytest.approx(a["rmse_test_after"])
 
 
 def test_split_has_no_overlap_and_test_untouched():
-    d = discover(_rec(["creep:0.8@2"]), ROBOT)
+    d = discover(_rec(["creep:0.8@2"]), ROBOT, exact_baseline=True)
     tr, va, te = d.masks["train"], d.masks["valid"], d.masks["test"]
     assert not np.any(tr & va) and not np.any(tr & te) and not np.any(va & te)
     assert np.all(tr | va | te)
@@ -156,7 +156,7 @@ def test_library_is_open_and_locate_finds_the_change_point():
     rec = _rec([])
     rec.force = rec.force.copy()
     rec.force[rec.t >= 12.0, 3] += 0.5
-    d = discover(rec, ROBOT, terms=library() + [LateStep()])
+    d = discover(rec, ROBOT, terms=library() + [LateStep()], exact_baseline=True)
     assert d.named == ["late_step"]
     assert d.findings[0].cables == [3]
     assert d.full[3].hyper["late_step"]["t_s"] == pytest.approx(12.0)
@@ -181,7 +181,7 @@ def test_cli_report_json_and_params(tmp_path):
     ap = argparse.ArgumentParser()
     sub = ap.add_subparsers()
     discover_cmd.add_parser(sub)
-    a = ap.parse_args(["discover", "--robot", ROBOT, str(tmp_path / "r.mcap"), "--report", str(tmp_path / "rep"),
+    a = ap.parse_args(["discover", "--robot", ROBOT, "--exact-baseline", str(tmp_path / "r.mcap"), "--report", str(tmp_path / "rep"),
                        "--out", str(tmp_path / "p.toml")])
     assert a.func(a) == 0
     for f in ("discovery.json", "index.html", "rmse.png", "overlay.png", "term_offset_gain.png", "params.toml"):

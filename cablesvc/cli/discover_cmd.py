@@ -1,8 +1,10 @@
 """``cablesvc discover``: find the physics a cable model leaves out of a recording.
 
-    cablesvc discover --robot ipanema3 [--params P] rec.mcap [--report DIR] [--json] [--out params.toml]
+    cablesvc discover --robot ipanema3 [--params P | --calib calib.mcap] rec.mcap [--report DIR] [--json] [--out params.toml]
     cablesvc discover --boucwen [--data DIR] [--hold] [--json] [--report DIR]
 
+``--calib`` identifies the amplitude baseline from a calibration recording first (the same
+call as ``cablesvc identify --model amplitude``). The first line printed is the verdict.
 Prints where the residual is (cables, time, state), the terms chosen with their evidence,
 and the held-out RMSE per cable before and after; ``--report`` writes JSON, PNG figures,
 the augmented parameter file and an HTML page; ``--json`` prints the JSON instead of text.
@@ -33,12 +35,24 @@ def cmd_discover(args: argparse.Namespace) -> int:
     if not args.recording or not args.robot:
         return fail("a recording and --robot are needed (or --boucwen)")
 
+    if args.calib and args.params:
+        return fail("give either --params or --calib (the baseline is identified from --calib)")
     try:
         robot = load_robot(args.robot)
+        params = args.params
+        if args.calib:
+            from cablesvc.identify.cable import identify_cable
+            try:
+                calib = read_recording(args.calib)
+            except RecordingError as e:
+                return fail(f"--calib {args.calib}: {e}")
+            params = identify_cable(calib, robot, "amplitude").params
+            params.identification["recording"] = str(args.calib)
         rec = read_recording(args.recording)
         terms = library(args.terms.split(",")) if args.terms else None
         sel = ForwardSelector(SelectOptions(min_gain=args.min_gain))
-        d = discover(rec, robot, args.params, terms=terms, selector=sel, block=args.block)
+        d = discover(rec, robot, params, terms=terms, selector=sel, block=args.block,
+                     exact_baseline=args.exact_baseline)
     except (RobotFileError, RecordingError, ParamFileError, DiscoveryError, KeyError, OSError, ValueError) as e:
         return fail(str(e))
     files = {}
@@ -90,6 +104,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    "$CABLESVC_BOUCWEN_DATA or the data shipped with cablesvc)")
     p.add_argument("--hold", action="store_true", help="--boucwen: simulate with a zero-order-hold input")
     p.add_argument("--params", default=None, help="baseline parameter file (default: the robot's nominal model)")
+    p.add_argument("--calib", default=None, metavar="CALIB",
+                   help="calibration recording (platform at home, hold-sine, 002 Sec 4): identify the amplitude "
+                        "baseline from it first (as cablesvc identify --model amplitude)")
+    p.add_argument("--exact-baseline", action="store_true",
+                   help="the baseline is the recording's exact model (a simulator's truth): no recalibration "
+                        "nuisance, the whole term library competes")
     p.add_argument("--report", default=None, metavar="DIR", help="write JSON, figures, params.toml and index.html")
     p.add_argument("--out", default=None, help="write the augmented parameter file here")
     p.add_argument("--json", action="store_true", help="print JSON")

@@ -112,6 +112,8 @@ def write_report(d, directory: str | os.PathLike) -> dict[str, str]:
     _fig_overlay(d, out / "overlay.png")
     files["overlay"] = str(out / "overlay.png")
     for f in d.findings:
+        if not all(c in d.final and f.term in d.final[c].contrib for c in f.cables):
+            continue        # named from the wrench balance (sensor error), not a force term
         p = out / f"term_{f.term}.png"
         _fig_term(d, f, p)
         files[f"term_{f.term}"] = str(p)
@@ -120,7 +122,7 @@ def write_report(d, directory: str | os.PathLike) -> dict[str, str]:
                    f"<td>{d.noise[c]:.3g}</td></tr>" for c in range(d.residual.shape[1]))
     finds = "".join(
         f"<h3>{e(f.label)} ({e(f.term)})</h3><p>{e(f.sentence())}</p><pre>{e(json.dumps(f.params, indent=1, default=float))}</pre>"
-        f"<img src='term_{e(f.term)}.png'>" for f in d.findings) or "<p>Nothing significant remains; no term added.</p>"
+        + (f"<img src='term_{e(f.term)}.png'>" if f"term_{f.term}" in files else "") for f in d.findings) or "<p>Nothing significant remains; no term added.</p>"
     loc = d.location
     def _regions(c: int) -> str:
         return ", ".join("%s (eta2 %.2f)" % (r["variable"], r["eta2"]) for r in loc["state_regions"].get(str(c), []))

@@ -228,6 +228,11 @@ class Term:
     nuisance: tuple[str, ...] = ()
     #: True for the one term the generic offset/gain columns belong to (``offset_gain``)
     owns_nuisance: bool = False
+    #: True for a term that only reshapes the baseline's own hysteresis or calibration
+    #: (amplitude, asymmetric, Bouc-Wen loop, sensor offset/gain): with an identified,
+    #: imperfect baseline these are inside its recalibration nuisance
+    #: (:mod:`cablesvc.discover.nuisance`), not concealed effects
+    model_form: bool = False
     #: True for a term that delays the elongation by its hyper-parameter ``tau``: the
     #: other terms on the cable are then built on the delayed signals (:meth:`Signals.delayed`)
     delays_input: bool = False
@@ -390,6 +395,7 @@ class AmplitudeStiffness(Term):
 
     K1_A [N/m^2], d_A [N/m]; A from the reversal points; v_s = 1e-4 m/s."""
 
+    model_form = True
     name = "amplitude"
     label = "amplitude-dependent stiffness and damping"
     equation = "K1_A (A - mean A)(x - mean x) + d_A A tanh(v/v_s)  (002 eq 8)"
@@ -414,6 +420,7 @@ class AsymmetricHardening(Term):
 
         delta_f = k2 (x - x_mean)^2 + k3 (x - x_mean)^3,   k2 [N/m^2], k3 [N/m^3]."""
 
+    model_form = True
     name = "asymmetric"
     label = "asymmetric hardening of the elastic backbone"
     equation = "k2 (x - mean x)^2 + k3 (x - mean x)^3  (001 Ch 4)"
@@ -517,6 +524,7 @@ class OffsetGain(Term):
 
         delta_f = o + g f,   o [N], g [-]."""
 
+    model_form = True
     name = "offset_gain"
     label = "sensor offset and gain error"
     equation = "o + g f"
@@ -539,6 +547,7 @@ class BoucWenHysteresis(Term):
     k_z [N/m], k_x [N/m]; the loop shape (beta, gamma) [1/m] on a grid set by the saturation
     z_max = 1 / (beta + gamma) relative to the elongation's spread."""
 
+    model_form = True
     name = "boucwen"
     label = "hysteresis missing (Bouc-Wen)"
     equation = "k_z z + k_x (x - mean x), dz = dx (1 - (beta sgn(z dx) + gamma)|z|)  (000 eqs 1-2)"

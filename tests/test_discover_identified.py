@@ -1,0 +1,165 @@
+"""Discovery with an identified, imperfect baseline (issue 15): the baseline's own
+recalibration is the nuisance, block-level evidence, the equilibrium check that tells a
+sensor error from a cable-model error, the verdict line and ``--calib``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+from cablesvc.config import load_robot
+from cablesvc.config.params import ModelParams
+from cablesvc.discover import discover
+from cablesvc.discover.equilibrium import equilibrium_check
+from cablesvc.discover.evidence import block_gain_test, holm
+from cablesvc.discover.pipeline import baseline_params
+from cablesvc.kinematics import inverse_kinematics, platform_wrench, structure_matrix
+from cablesvc.simulate import TruthConfig, effect_from_spec, simulate_recording
+
+ROBOT = "ipanema3"
+
+
+def _rec(specs, seed=11, duration=20.0, path=None):
+    eff = [effect_from_spec(s, 8) for s in specs]
+    return simulate_recording(ROBOT, "trajectory", path, truth=TruthConfig(effects=eff, noise_std=0.1),
+                              duration=duration, rate=100, seed=seed)
+
+
+def _wrong_baseline(scale=1.06) -> ModelParams:
+    """The twin's nominal model with every stiffness coefficient scaled: an honestly wrong
+    baseline (the kind identification leaves away from its calibration point)."""
+    rob = load_robot(ROBOT)
+    p = baseline_params(rob)
+    tables = dict(p.tables)
+    tables["K1"] = (np.asarray(tables["K1"], float) * scale).tolist()
+    return ModelParams(model=p.model, params=dict(p.params), options=dict(p.options), tables=tables,
+                       robot=p.robot, identification=dict(p.identification), source="<scaled>")
+
+
+def test_wrong_baseline_is_recalibrated_not_named():
+    # the baseline is 6 % too stiff, nothing concealed: the exact-baseline method names
+    # model-form and sensor terms for this mismatch; the identified mode recalibrates it
+    rec = _rec([], seed=3)
+    old = discover(rec, ROBOT, _wrong_baseline(), exact_baseline=True)
+    assert old.named                     # what the issue measured: mismatch taken for physics
+    d = discover(rec, ROBOT, _wrong_baseline())
+    assert d.named == []
+    assert d.recalibration["cables"]     # ... but reported as the baseline's own finding
+    ks = [d.recalibration["per_cable"][str(c)]["k_s"] for c in d.recalibration["cables"]]
+    assert np.median(ks) < 0             # the baseline is too stiff: scaled down
+    assert d.summary()[0].startswith("verdict: nothing significant beyond the baseline's calibration")
+    doc = d.to_json()
+    assert doc["mode"] == "identified" and doc["verdict"] == d.summary()[0]
+    assert "recalibration" in doc and "unexplained" in doc
+
+
+def test_creep_named_beyond_the_recalibrated_baseline_with_a_p_value():
+    d = discover(_rec(["creep:0.8@2"], seed=11), ROBOT, _wrong_baseline())
+    assert d.named == ["creep"]
+    assert d.findings[0].cables == [2]
+    assert 0.0 <= d.findings[0].p_value < 0.05
+    doc = d.to_json()
+    assert doc["findings"][0]["p_value"] == d.findings[0].p_value
+    assert d.summary()[0].startswith("verdict: creep on cable 2")
+
+
+def test_block_gain_test_is_not_fooled_by_a_smooth_residual():
+    # a smooth residual (random walk) and an unrelated smooth regressor: per tick they
+    # correlate "significantly", per block the gain of fitting one to the other is noise
+    rng = np.random.default_rng(1)
+    n, k = 3000, 20
+    hits = 0
+    for _ in range(20):
+        r = np.cumsum(rng.standard_normal(n)) * 0.01 + 0.1 * rng.standard_normal(n)
+        z = np.cumsum(rng.standard_normal(n)) * 0.01
+        blocks = np.array_split(np.arange(n), k)
+        e0, e1 = [], []
+        for b in blocks:
+            m = np.ones(n, bool)
+            m[b] = False
+            X = np.column_stack([np.ones(n), z])
+            beta, *_ = np.linalg.lstsq(X[m], r[m], rcond=None)
+            beta0 = r[m].mean()
+            e1.append(r[b] - X[b] @ beta)
+            e0.append(r[b] - beta0)
+        hits += block_gain_test(e0, e1, 0.1)["p"] < 0.05
+    assert hits <= 3
+
+
+def test_holm_adjusts_for_all_tries():
+    adj = holm({"a": 0.001, "b": 0.02}, tries=10)
+    assert adj["a"] == pytest.approx(0.01)
+    assert adj["b"] == pytest.approx(0.18)
+
+
+def _balanced(seed=0, n=2000):
+    """Poses near home and cable forces that balance the platform's weight exactly
+    (002 eq 2), with a common pretension in the null space of A^T."""
+    rob = load_robot(ROBOT)
+    g = rob.geometry()
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.01
+    P = np.column_stack([0.05 * np.sin(2 * np.pi * 0.11 * t), 0.04 * np.sin(2 * np.pi * 0.07 * t + 1),
+                         0.03 * np.sin(2 * np.pi * 0.05 * t)])
+    Q = np.tile([0.0, 0.0, 0.0, 1.0], (n, 1))
+    ik = inverse_kinematics(g, P, Q)
+    AT = structure_matrix(ik.unit, ik.anchor_world)
+    w = platform_wrench(g, ik.rotation)
+    f = np.empty((n, g.n_cables))
+    for i in range(n):
+        pinv = np.linalg.pinv(AT[i])
+        null = np.eye(g.n_cables) - pinv @ AT[i]
+        f[i] = -pinv @ w[i] + null @ np.full(g.n_cables, 150.0)
+    assert np.all(f > 10.0)
+    return g, t, P, Q, f, rng
+
+
+def test_equilibrium_tells_a_sensor_offset_from_a_balanced_recording():
+    g, t, P, Q, f, rng = _balanced()
+    y = f + 0.1 * rng.standard_normal(f.shape)
+    noise = np.full(g.n_cables, 0.1)
+    ok = equilibrium_check(g, t, P, Q, y, noise)
+    assert ok["holds"] and ok["sensor"] == {} and ok["ratio"] < 1.3
+    y2 = y.copy()
+    y2[:, 2] += 0.5                      # sensor offset on cable 2 only
+    bad = equilibrium_check(g, t, P, Q, y2, noise)
+    assert list(bad["sensor"]) == [2]
+    assert bad["sensor"][2]["mean_N"] == pytest.approx(0.5, abs=0.1) and bad["holds"]
+
+
+def test_equilibrium_reports_when_the_forces_do_not_balance():
+    g, t, P, Q, f, rng = _balanced()
+    # forces of a pose 5 mm away: no sensor column explains that
+    ik = inverse_kinematics(g, P + np.array([0.005, 0.0, 0.0]), Q)
+    y = f + 0.1 * rng.standard_normal(f.shape)
+    AT = structure_matrix(ik.unit, ik.anchor_world)
+    AT0 = structure_matrix(*[getattr(inverse_kinematics(g, P, Q), k) for k in ("unit", "anchor_world")])
+    drift = np.einsum("nim,nm->ni", AT - AT0, f)
+    y = y + 0.2 * np.sin(2 * np.pi * 0.2 * t)[:, None] * np.linspace(-1, 1, f.shape[1])[None] \
+        + np.einsum("ni,ni->n", drift, drift)[:, None] * 0.0
+    res = equilibrium_check(g, t, P, Q, y, np.full(f.shape[1], 0.1))
+    assert not res["holds"]
+
+
+def test_cli_calib_identifies_then_discovers_and_prints_the_verdict_first(tmp_path, capsys):
+    from cablesvc.cli import discover_cmd
+    simulate_recording(ROBOT, "hold-sine", tmp_path / "calib.mcap", truth=TruthConfig(noise_std=0.1),
+                       duration=None, rate=100, seed=2)
+    _rec(["creep:1.0@2"], seed=4, path=tmp_path / "r.mcap")
+    ap = argparse.ArgumentParser()
+    discover_cmd.add_parser(ap.add_subparsers())
+    a = ap.parse_args(["discover", "--robot", ROBOT, "--calib", str(tmp_path / "calib.mcap"), str(tmp_path / "r.mcap"),
+                       "--json"])
+    assert a.func(a) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["mode"] == "identified" and doc["verdict"].startswith("verdict: ")
+    assert doc["baseline"]["model"] == "amplitude"
+    a = ap.parse_args(["discover", "--robot", ROBOT, "--calib", str(tmp_path / "calib.mcap"), str(tmp_path / "r.mcap")])
+    assert a.func(a) == 0
+    assert capsys.readouterr().out.splitlines()[0].startswith("verdict: ")
+    bad = ap.parse_args(["discover", "--robot", ROBOT, "--calib", str(tmp_path / "nope.mcap"), str(tmp_path / "r.mcap")])
+    assert bad.func(bad) == 1
+    assert "nope.mcap" in capsys.readouterr().err
