@@ -247,9 +247,9 @@ def _law(x, dt, kind, sk, c, xs, beta, asat, alpha, t_env, jk, jr, km, tau):   #
 
 @numba.njit(cache=True)
 def _eval(n, q, x0, AT, w, e, cv, rows, xprev, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk, jr, km, aa,
-          bb, hi, lo, ve, z, y, zt, x, f, D):                              # pragma: no cover - compiled
+          bb, hi, lo, ve, z, y, zt, x, f, D, need_d):                      # pragma: no cover - compiled
     """Residual A^T (F + e) + w on ``rows`` at tick n for pose correction q; the law's
-    forces go to f and their tangent dF/dx to D (central differences)."""
+    forces go to f and (``need_d``) their tangent dF/dx to D (central differences)."""
     m = x.size
     for i in range(m):
         s = 0.0
@@ -261,6 +261,8 @@ def _eval(n, q, x0, AT, w, e, cv, rows, xprev, dt, kind, sk, c, xs, beta, asat, 
         dx = 0.0 if n == 0 else x[i] - xprev[i]
         f[i] = _step(x[i], dx, dt, kind, sk[i], c[i], xs[i], beta[i], asat[i], alpha[i], shrink[i], jk[i], jr[i],
                      km[i], aa[i], bb[i], hi[i], lo[i], ve[i], z[i], y[i], zt)[0] + e[n, i] + cv[i] * dx / dt
+        if not need_d:
+            continue
         h = 1e-9
         fp = _step(x[i] + h, dx + hd, dt, kind, sk[i], c[i], xs[i], beta[i], asat[i], alpha[i], shrink[i], jk[i],
                    jr[i], km[i], aa[i], bb[i], hi[i], lo[i], ve[i], z[i], y[i], zt)[0]
@@ -313,7 +315,7 @@ def _balanced(x0, AT, w, e, cv, rowmask, dt, kind, sk, c, xs, beta, asat, alpha,
     worst = 0.0
     for n in range(N):
         R = _eval(n, q, x0, AT, w, e, cv, rows, xprev, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk, jr, km, aa,
-                  bb, hi, lo, ve, z, y, zt, x, f, D)
+                  bb, hi, lo, ve, z, y, zt, x, f, D, True)
         nR = np.max(np.abs(R))
         for it in range(max_iter):
             if nR <= tol:
@@ -333,11 +335,14 @@ def _balanced(x0, AT, w, e, cv, rowmask, dt, kind, sk, c, xs, beta, asat, alpha,
                 for r in range(nr):
                     qt[rows[r]] += t * d[r]
                 Rt = _eval(n, qt, x0, AT, w, e, cv, rows, xprev, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk,
-                           jr, km, aa, bb, hi, lo, ve, z, y, zt, x, f, D)
+                           jr, km, aa, bb, hi, lo, ve, z, y, zt, x, f, D, False)
                 nRt = np.max(np.abs(Rt))
                 if nRt < nR or t < 1e-4:
                     break
                 t *= 0.5
+            if nRt > tol:                       # the tangent at the accepted point, for the next step
+                _eval(n, qt, x0, AT, w, e, cv, rows, xprev, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk, jr, km,
+                      aa, bb, hi, lo, ve, z, y, zt, x, f, D, True)
             for j in range(6):
                 q[j] = qt[j]
             R = Rt
@@ -668,7 +673,7 @@ def equilibrium_run(geom: RobotGeometry, variant: CableVariant, effects: list[Ef
         e = f - fb - cv[None, :] * vin           # the effects' share, lagged; viscous is solved implicitly
         prev = load
         dq, _, _, _ = _balanced(np.ascontiguousarray(x), np.ascontiguousarray(AT), np.ascontiguousarray(w),
-                             np.ascontiguousarray(e), cv, rowmask, float(dt), *_law_args(variant), 1e-6, 30)
+                             np.ascontiguousarray(e), cv, rowmask, float(dt), *_law_args(variant), 1e-5, 30)
         P = P + dq[:, :3]
         Q = quat_multiply(rotvec_to_quat(dq[:, 3:]), Q)
         Q /= np.linalg.norm(Q, axis=1, keepdims=True)
