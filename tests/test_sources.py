@@ -959,7 +959,7 @@ def test_damaged_recordings_become_problems_not_exceptions(tmp_path, robot, twin
         assert src.recv(timeout=0.5) is None and src.finished
         problems = src.problems()
     assert problems and problems[0].reason == "recording_error" and "junk.mcap" in problems[0].message
-    # a CSV with a broken number: the ticks before it are played, the line is named
+    # a CSV with a broken number: that line is rejected, named, and the others are played
     csv = tmp_path / "bad.csv"
     write_recording(csv, rec.slice(0, 10))
     lines = csv.read_text().splitlines()
@@ -971,8 +971,8 @@ def test_damaged_recordings_become_problems_not_exceptions(tmp_path, robot, twin
     with open_source(robot, {"kind": "replay", "path": str(csv), "speed": 0}) as src:
         ticks = _drain(src)
         problems = src.problems()
-    assert [t.seq for t in ticks] == [0, 1, 2, 3, 4]
-    assert [p.reason for p in problems] == ["recording_error"]
+    assert [t.seq for t in ticks] == [0, 1, 2, 3, 4, 6, 7, 8, 9]
+    assert [p.reason for p in problems] == ["bad_line"]
     assert f"line {head + 7}" in problems[0].message
 
 
