@@ -191,63 +191,97 @@ def _ool_ok(findings: list[Any], unexplained: list[Any], cables: list[int]) -> b
     return bool(fc) and fc <= set(cables)
 
 
-def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Optional[Any] = None) -> dict[str, Any]:
-    """Realistic bench: the plan of :func:`cablesvc.bench.discover_cases.case_plan` (``cases``
-    singles, pairs and controls, ``cases // 2`` out-of-library cases) on ``fleet`` robots."""
-    from cablesvc.bench.discover_cases import NOISE as RN, case_plan, calibrated_robot, make_realistic_case
+def _realistic_row(spec: Any, seed: int) -> dict[str, Any]:
+    """Simulate, calibrate (once per robot and process) and discover one planned case;
+    the per-case row of :func:`run_realistic`. A top-level function, so that worker
+    processes can run it."""
+    from cablesvc.bench.discover_cases import NOISE as RN, calibrated_robot, make_realistic_case
     from cablesvc.discover import discover
+    sr = calibrated_robot(spec.robot_index, seed)
+    case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
+                               rng=np.random.default_rng([seed, 7, spec.index]))
+    t1 = time.perf_counter()
+    d = discover(case.recording, sr.robot, case.baseline)
+    td = time.perf_counter() - t1
+    findings = list(getattr(d, "findings", []) or [])
+    unexplained = list(getattr(d, "unexplained", []) or [])
+    named = sorted({f.term for f in findings})
+    truth = sorted(spec.names)
+    affected = case.truth["cables"]
+    red = d.reduction(affected) if affected else None
+    ok = _ool_ok(findings, unexplained, affected) if spec.kind == "ool" else named == truth
+    rb = np.asarray(getattr(d, "rmse_before", []), float)
+    ra = np.asarray(getattr(d, "rmse_after", []), float)
+    after = float(np.sqrt(np.mean(ra[affected] ** 2)) / RN) if affected and ra.size else None
+    unexpl_cables = sorted({int(c) for u in unexplained if isinstance(u, dict) for c in u.get("cables", [])})
+    return {"kind": spec.kind, "seed": spec.seed, "robot": spec.robot_index, "index": spec.index,
+            "truth": [e.describe() for e in case.effects], "truth_names": truth, "truth_cables": affected,
+            "effect_rms": case.effect_rms, "named": {f.term: list(f.cables) for f in findings},
+            "unexplained": [{"cables": list(u.get("cables", []))} if isinstance(u, dict) else str(u)
+                            for u in unexplained],
+            "unexplained_on_truth_cables": bool(set(unexpl_cables) & set(affected)),
+            "correct": ok, "both_named": set(truth) <= set(named), "rmse_reduction": red,
+            "test_rmse_after_over_noise": after,
+            "baseline_rmse_over_noise": (rb / RN).tolist() if rb.size else None,
+            "wrench_rms": case.wrench, "seconds": {"simulate": case.seconds["simulate"], "discover": td},
+            "robot_seconds": dict(sr.seconds)}
+
+
+def _realistic_rows(plan: list[Any], seed: int, workers: int, progress: Optional[Any]):
+    """Yield the rows of ``plan`` in plan order, from ``workers`` processes (1: this one)."""
+    def note(row: dict[str, Any], i: int) -> None:
+        if progress:
+            progress(i, len(plan), f"{row['kind']} {row['truth_names']} -> {sorted(row['named'])}"
+                     + (" + unexplained" if row["unexplained"] else ""))
+    if workers <= 1:
+        for i, spec in enumerate(plan):
+            row = _realistic_row(spec, seed)
+            note(row, i + 1)
+            yield row
+        return
+    import concurrent.futures as cf
+    import multiprocessing as mp
+    # every case is independent and deterministic given its spec, so the rows (and the result)
+    # do not depend on the number of workers; each process calibrates the robots it meets once
+    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+        futs = [pool.submit(_realistic_row, spec, seed) for spec in plan]
+        done = 0
+        for f in cf.as_completed(futs):
+            done += 1
+            note(f.result(), done)
+        for f in futs:
+            yield f.result()
+
+
+def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Optional[Any] = None,
+                  workers: int = 1) -> dict[str, Any]:
+    """Realistic bench: the plan of :func:`cablesvc.bench.discover_cases.case_plan` (``cases``
+    singles, pairs and controls, ``cases // 2`` out-of-library cases) on ``fleet`` robots,
+    run by ``workers`` processes (the result does not depend on it, but the seconds do)."""
+    from cablesvc.bench.discover_cases import case_plan
     t0 = time.perf_counter()
     plan = case_plan(cases, seed, fleet)
     per_case = []
     conf: dict[str, dict[str, int]] = {}
     split = {"simulate": 0.0, "identify": 0.0, "discover": 0.0}
-    robots = {}
-    for spec in plan:
-        sr = calibrated_robot(spec.robot_index, seed)
-        if (spec.robot_index, seed) not in robots:      # calibrated once, its cost counted once
-            robots[(spec.robot_index, seed)] = sr
-            split["simulate"] += sr.seconds["simulate"]
-            split["identify"] += sr.seconds["identify"]
-        case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
-                                   rng=np.random.default_rng([seed, 7, spec.index]))
-        split["simulate"] += case.seconds["simulate"]
-        t1 = time.perf_counter()
-        d = discover(case.recording, sr.robot, case.baseline)
-        td = time.perf_counter() - t1
-        split["discover"] += td
-        findings = list(getattr(d, "findings", []) or [])
-        unexplained = list(getattr(d, "unexplained", []) or [])
-        named = sorted({f.term for f in findings})
-        truth = sorted(spec.names)
-        affected = case.truth["cables"]
-        red = d.reduction(affected) if affected else None
-        if spec.kind == "ool":
-            ok = _ool_ok(findings, unexplained, affected)
-        else:
-            ok = named == truth
-        row = conf.setdefault("+".join(truth) if truth else "none", {})
+    robots: dict[Any, dict[str, float]] = {}
+    for row in _realistic_rows(plan, seed, workers, progress):
+        if row["robot"] not in robots:      # calibrated once per robot, its cost counted once
+            robots[row["robot"]] = row["robot_seconds"]
+            split["simulate"] += row["robot_seconds"]["simulate"]
+            split["identify"] += row["robot_seconds"]["identify"]
+        split["simulate"] += row["seconds"]["simulate"]
+        split["discover"] += row["seconds"]["discover"]
+        truth = row.pop("truth_names")
+        row.pop("robot_seconds")
+        row.pop("index")
+        named = sorted(row["named"])
+        r = conf.setdefault("+".join(truth) if truth else "none", {})
         for n in (named or ["nothing"]):
-            row[n] = row.get(n, 0) + 1
-        if unexplained:
-            row["unexplained"] = row.get("unexplained", 0) + 1
-        rb = np.asarray(getattr(d, "rmse_before", []), float)
-        ra = np.asarray(getattr(d, "rmse_after", []), float)
-        after = float(np.sqrt(np.mean(ra[affected] ** 2)) / RN) if affected and ra.size else None
-        unexpl_cables = sorted({int(c) for u in unexplained if isinstance(u, dict) for c in u.get("cables", [])})
-        per_case.append({"kind": spec.kind, "seed": spec.seed, "robot": spec.robot_index,
-                         "truth": [e.describe() for e in case.effects], "truth_cables": affected,
-                         "effect_rms": case.effect_rms, "named": {f.term: list(f.cables) for f in findings},
-                         "unexplained": [{"cables": list(u.get("cables", []))} if isinstance(u, dict) else str(u)
-                                         for u in unexplained],
-                         "unexplained_on_truth_cables": bool(set(unexpl_cables) & set(affected)),
-                         "correct": ok, "both_named": set(truth) <= set(named), "rmse_reduction": red,
-                         "test_rmse_after_over_noise": after,
-                         "baseline_rmse_over_noise": (rb / RN).tolist() if rb.size else None,
-                         "wrench_rms": case.wrench, "seconds": {"simulate": case.seconds["simulate"],
-                                                                "discover": td}})
-        if progress:
-            progress(len(per_case), len(plan), f"{spec.kind} {truth} -> {named}"
-                     + (" + unexplained" if unexplained else ""))
+            r[n] = r.get(n, 0) + 1
+        if row["unexplained"]:
+            r["unexplained"] = r.get("unexplained", 0) + 1
+        per_case.append(row)
     sing = [c for c in per_case if c["kind"] == "single"]
     pair = [c for c in per_case if c["kind"] == "pair"]
     ctrl = [c for c in per_case if c["kind"] == "control"]
@@ -273,7 +307,7 @@ def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Opti
         "confusion": conf, "labels": sorted(conf), "per_case": per_case,
         "fleet": len(robots), "seconds_split": split,
         "seconds_per_case": {k: v / n for k, v in split.items()},
-        "seconds": time.perf_counter() - t0, "seed": seed,
+        "seconds": time.perf_counter() - t0, "seed": seed, "workers": int(workers),
     }
 
 
@@ -301,6 +335,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--ideal", action="store_true",
                    help="the ideal bench: the twin's own truth model is the baseline (no calibration)")
     p.add_argument("--fleet", type=int, default=4, help="realistic: simulated robots, each calibrated once")
+    p.add_argument("--workers", type=int, default=2,
+                   help="realistic: processes running cases side by side (default 2; 1 runs them here); "
+                        "the result is the same for any number")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=main)
     return p
@@ -317,7 +354,7 @@ def _main_realistic(args) -> int:
         def prog(i: int, n: int, text: str) -> None:
             bar.update(task, total=n, completed=i, description=text)
 
-        res = run_realistic(args.cases, args.seed, args.fleet, progress=prog)
+        res = run_realistic(args.cases, args.seed, args.fleet, progress=prog, workers=args.workers)
     if args.json:
         print(json.dumps(res, indent=1, default=float))
         return 0
@@ -348,6 +385,9 @@ def _main_realistic(args) -> int:
 def main(args) -> int:
     if args.cases < 1:
         print("--cases must be >= 1", file=sys.stderr)
+        return 2
+    if getattr(args, "workers", 1) < 1:
+        print("--workers must be >= 1", file=sys.stderr)
         return 2
     if getattr(args, "fleet", 1) < 1:
         print("--fleet must be >= 1", file=sys.stderr)
