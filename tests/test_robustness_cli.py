@@ -41,9 +41,14 @@ def test_run_rejects_bad_endpoints(flag):
     one_line(r, 2, flag, "bogus")
 
 
-def test_run_robot_without_dbc_is_one_line():
-    r = run("--robot", "cogiro", "--seconds", "3", timeout=60)
-    one_line(r, 1, "cogiro", "dbc")
+def test_run_robot_without_dbc_is_one_line(tmp_path):
+    # every shipped robot has its DBC files: a robot file of our own without them
+    from pathlib import Path
+    text = (Path(__file__).resolve().parent.parent / "robots" / "planar4.toml").read_text()
+    robot = tmp_path / "nodbc.toml"
+    robot.write_text(text.replace('name = "planar4"', 'name = "nodbc"'))
+    r = run("--robot", str(robot), "--seconds", "3", timeout=60)
+    one_line(r, 1, "nodbc", "dbc")
 
 
 CONFIGS = {
