@@ -277,13 +277,28 @@ def load_params(path: str | Path) -> ModelParams:
     """Read and check a parameter file. Raises ParamFileError listing every problem."""
     path = Path(path)
     try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ParamFileError(path, ["file not found"]) from None
     except UnicodeDecodeError as e:
         raise ParamFileError(path, [f"not UTF-8 text (byte {e.start}): a TOML file is UTF-8"]) from None
     except OSError as e:
         raise ParamFileError(path, [f"cannot read: {e.strerror or e}"]) from None
+    return parse_params(text, str(path))
+
+
+def parse_params(text: str | bytes, source: str = "<text>") -> ModelParams:
+    """Check the TOML text of a parameter file (e.g. a Zenoh put of one); ``source`` names it
+    in the messages and becomes :attr:`ModelParams.source`. Raises ParamFileError listing
+    every problem, as :func:`load_params` does for a file."""
+    path = source
+    if isinstance(text, (bytes, bytearray, memoryview)):
+        try:
+            text = bytes(text).decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise ParamFileError(path, [f"not UTF-8 text (byte {e.start}): a TOML file is UTF-8"]) from None
+    try:
+        raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ParamFileError(path, [f"TOML syntax: {e}"]) from None
     problems = []
