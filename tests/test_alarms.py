@@ -384,5 +384,5 @@ def test_event_payload_round_trip_and_codes():
     back = AlarmEvent.from_payload(ev.payload())
     assert back.code == "drift" and back.cable == 3 and back.t == 12.5
     assert set(ALARM_CODES) == {"drift", "spread", "slack", "over_limit", "wrench_residual", "input_stale", "input_lost", "input_fault",
-                                "amplitude_range"}
+                                "amplitude_range", "params_refused"}
     assert replace(ev, action="clear").key == ev.key

@@ -42,6 +42,8 @@ ALARM_CODES: dict[str, tuple[str, str]] = {
     "amplitude_range": ("info", "elongation amplitude outside the range the cable model was identified on"),
     "input_fault": ("warning", "the source rejected input (bad frame or value, missing frames, time or seq "
                                "going backwards, ...); cleared after input_fault_clear_s without rejections"),
+    "params_refused": ("warning", "new cable-model parameters (SIGHUP or a put on cablesvc/<robot>/params) were "
+                                  "refused; the previous ones stay active; cleared by the next accepted reload"),
 }
 SEVERITIES = ("info", "warning", "error")
 ACTIONS = ("raise", "clear")

@@ -143,6 +143,24 @@ class AlarmManager:
         self._account(out)
         return out
 
+    def set_params(self, params: ModelParams | None, t: float, seq: int | None) -> list[AlarmEvent]:
+        """New cable-model parameters (the daemon's reload at a tick boundary): the state
+        alarms use their identified amplitude range from the next tick on. Returns clear
+        events for active ``amplitude_range`` alarms when the new parameters have no range
+        (that alarm is then off and could never clear by itself). Drift is not touched here:
+        the caller restarts its baseline (:meth:`reset_drift`) when the model changed."""
+        rng = params.amplitude_range() if params is not None else None
+        self.state.set_amplitude_range(rng)
+        out = []
+        if not self.state.enabled("amplitude_range"):
+            for key, e in list(self._active.items()):
+                if e.code == "amplitude_range":
+                    out.append(AlarmEvent("clear", e.code, e.cable, e.severity, t, e.since, seq,
+                                          f"cable {e.cable}: the new model parameters have no identified "
+                                          "amplitude range; amplitude alarm off"))
+        self._account(out)
+        return out
+
     # -- snapshots ---------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         """Nested dict of numpy arrays and strings (no objects): drift and state-alarm state,

@@ -313,6 +313,15 @@ class StateAlarms:
                    f"the force residual |A^T f + w| is {v:.1f} N, back below {lim:.1f} N")
         return AlarmEvent(action, kind, i, self._sev[kind], t, since, seq, msg, value=v, limit=lim)
 
+    def set_amplitude_range(self, rng: tuple[float, float] | None) -> None:
+        """New parameters were loaded (the daemon's reload): use their identified amplitude
+        range [m] from the next tick on (None switches the amplitude alarm off). The
+        channels' states (active alarms, hold timers) are kept."""
+        self.amplitude_range = rng
+        P = self._P
+        P[_P_AMP] = float(self.config.amplitude_range and rng is not None)
+        P[_P_AMP_LO], P[_P_AMP_HI] = rng if rng is not None else (math.nan, math.nan)
+
     def state_dict(self) -> dict[str, np.ndarray]:
         """Alarm states (active, pending since, ...) per channel, numeric only."""
         return {"state": self._ST.copy()}

@@ -456,6 +456,7 @@ def plan_fleet(args, cfg: dict[str, Any], file: str) -> tuple[dict[str, Any], li
             snapshot = Path(snapshot) if snapshot else None
         record = Path(e["record"]) if e.get("record") else None
         opts = DaemonOptions(robot=robot, params=params, source=src, encoding=shared["encoding"],
+                             params_file=str(e["params"]) if e.get("params") else None,
                              zenoh_config_file=shared["zenoh_config_file"], listen=shared["listen"],
                              connect=shared["connect"], record=record, snapshot=snapshot,
                              snapshot_interval_s=float(interval), alarm_config=alarm_cfg,
@@ -507,12 +508,37 @@ def _interrupt_startup(signum, frame):
     raise _StartupInterrupted(signal.Signals(signum).name)
 
 
+#: SIGHUP received while starting (before a daemon could take it): reload once it runs
+_HUP_EARLY: list[int] = []
+
+
+def _hup_during_startup(signum, frame):
+    _HUP_EARLY.append(signum)
+
+
+def _reload_on_sighup(daemons) -> None:
+    """From here on SIGHUP makes every daemon re-read its parameter file (the handler only
+    queues the request; each daemon's reload thread reads and checks the file, its loop
+    switches between two ticks). A SIGHUP that came during start-up is served now."""
+    def on_hup(signum, frame):
+        for d in daemons:
+            d.request_reload(origin="SIGHUP")
+
+    signal.signal(signal.SIGHUP, on_hup)
+    if _HUP_EARLY:
+        _HUP_EARLY.clear()
+        on_hup(signal.SIGHUP, None)
+
+
 def cmd_run(args) -> int:
     """Start-up (loading files, precomputing the simulated controller, opening the bus and
     Zenoh) takes a few seconds; SIGINT or SIGTERM during it ends the process cleanly with
-    status 130 instead of a traceback."""
+    status 130 instead of a traceback. SIGHUP during it is kept and served once the daemon
+    runs (its default action would kill the process)."""
     signal.signal(signal.SIGINT, _interrupt_startup)
     signal.signal(signal.SIGTERM, _interrupt_startup)
+    if hasattr(signal, "SIGHUP"):
+        signal.signal(signal.SIGHUP, _hup_during_startup)
     try:
         return _cmd_run(args)
     except _StartupInterrupted as e:
@@ -597,6 +623,7 @@ def _cmd_run(args) -> int:
         wait_subscriber_s=args.wait_subscriber,
         record_overwrite=bool(getattr(args, "overwrite", False)),
         source_id=None if controller is None else sim_source_id(robot.name),
+        params_file=str(params_file) if params_file else None,
     )
     stop = threading.Event()
 
@@ -619,6 +646,8 @@ def _cmd_run(args) -> int:
         raise
     signal.signal(signal.SIGINT, on_signal)          # from here on: a clean shutdown
     signal.signal(signal.SIGTERM, on_signal)
+    if hasattr(signal, "SIGHUP"):
+        _reload_on_sighup([daemon])
     log = logging.getLogger("cablesvc.run")
     log.info("cablesvc %s: robot %s, source %s, model %s, zenoh %s", robot.name, robot.name,
              json.dumps(src, default=str), params.model,
@@ -711,6 +740,8 @@ def _run_fleet(args, cfg: dict[str, Any], file: str) -> int:
 
     signal.signal(signal.SIGINT, on_signal)          # from here on: a clean shutdown
     signal.signal(signal.SIGTERM, on_signal)
+    if hasattr(signal, "SIGHUP"):
+        _reload_on_sighup(list(fleet.daemons.values()))
     log = logging.getLogger("cablesvc.run")
     log.info("cablesvc fleet of %d robots (%s), zenoh %s", len(plans), ", ".join(fleet.names),
              shared["zenoh_config_file"] or f"peer on {', '.join(shared['listen'] or ('tcp/127.0.0.1:7447',))}")

@@ -21,6 +21,17 @@ shutdown, and restored at start when they belong to the same robot and parameter
 Bad input never stops the loop: sources reject it (counted by reason, reported as
 problems); an exception inside the kernel is counted as ``kernel_error``, the kernel is
 reset, and the loop goes on.
+
+New parameters without a restart (:meth:`Daemon.request_reload`, :meth:`Daemon.reload_params`):
+SIGHUP re-reads the parameter file, a put on ``cablesvc/<robot>/params`` carries a file's
+TOML text. A reload thread parses and checks it and builds the new kernel beside the
+running one (and runs it once, so that its first live tick costs what any tick costs);
+the loop swaps kernels between two ticks, under the lock a tick holds, so no tick is
+missed or half done. The hysteresis state (reversal points, amplitude estimate, Bouc-Wen
+z, ...) carries over when the model family is the same; a new family starts at rest at
+the current elongation, pose and time kept. A file that does not parse, fails a check or
+does not fit the robot (cable count, robot name) is refused with the reason: logged,
+counted, in the status, raised as a ``params_refused`` alarm; the old parameters stay.
 """
 
 from __future__ import annotations
@@ -77,6 +88,7 @@ class DaemonOptions:
     direct: bool = True                          # process ticks on the source's receive thread (no hand-off)
     input_fault_clear_s: float = 5.0             # input_fault clears after this long without a rejection
     source_id: str | None = None                 # the input's identity in snapshots (None: source_identity)
+    params_file: str | None = None               # what SIGHUP re-reads (None: params.source when it is a file)
 
 
 def default_snapshot_path(robot: str) -> Path:
@@ -383,6 +395,46 @@ class _Held:
         self.lock.release()
 
 
+@dataclass
+class _ParamsChange:
+    """New parameters prepared by the reload thread, waiting for the loop to switch."""
+
+    params: ModelParams
+    predictor: Predictor
+    fingerprint: str
+    origin: str
+    done: threading.Event = field(default_factory=threading.Event)
+    result: dict[str, Any] | None = None
+
+
+def _hand_over(old: Predictor, new: Predictor) -> str:
+    """Carry the kernel state of ``old`` into ``new`` (same robot); returns what happened.
+
+    Same model family (model name): the whole state (the model's memory: reversal points,
+    amplitude estimate, Bouc-Wen z, ...; the pose the FK warm-starts from; the last tick's
+    time) carries over, so that reloading the same parameters changes nothing. Another
+    family: its memory means nothing to the new model, which starts at rest at the last
+    tick's elongation (as at a start, but with the pose and time kept: the next tick's dt
+    is the real one)."""
+    d = old.state_dict()
+    if not d:
+        return "none yet (no tick processed): the new model starts at the first tick"
+    why = ""
+    if old.params.model == new.params.model:
+        try:
+            new.load_state_dict(d)
+            return "kept (same model family)"
+        except (KeyError, ValueError) as e:
+            why = f" (the {new.params.model} state did not fit: {e})"
+    x = np.array(old.out.elongation, dtype=float).reshape(1, -1)
+    fresh = new.model.create_state(x)
+    d2 = {f"model.{k}": v for k, v in fresh.as_dict().items()}
+    d2.update({k: v for k, v in d.items() if not k.startswith("model.")})
+    new.load_state_dict(d2)
+    return (f"reset: the model family changed from {old.params.model} to {new.params.model}{why}; the new model "
+            "starts at rest at the current elongation (pose and time kept)")
+
+
 class Daemon:
     """Source, kernel, alarms, publisher: see the module docstring.
 
@@ -431,6 +483,21 @@ class Daemon:
         self._step_max = np.zeros(m)
         self._dx = np.empty(m)
         self._dt_last: float | None = None           # the last tick's time step [s]
+        # parameter reload (see the module docstring): a change prepared by the reload
+        # thread waits in _pending_params until the loop takes it between two ticks
+        pf = options.params_file
+        if pf is None and options.params.source and os.path.isfile(options.params.source):
+            pf = options.params.source
+        self.params_file: str | None = os.path.abspath(pf) if pf else None
+        self.params_origin = f"file {self.params_file}" if self.params_file else "nominal (no parameter file)"
+        self.params_since: dict[str, Any] = {"wall_time": time.time(), "seq": None, "t": None, "origin": "start"}
+        self.reload_counts = {"accepted": 0, "refused": 0}
+        self.last_reload: dict[str, Any] | None = None
+        self._pending_params: _ParamsChange | None = None
+        self._params_alarm = None                  # the raised params_refused alarm, if any
+        self._last_tick = None                     # the last input tick (warms up a new kernel)
+        self._reload_q: queue.SimpleQueue = queue.SimpleQueue()     # put() is safe in a signal handler
+        self._reload_thread: threading.Thread | None = None
         if options.record is not None:           # before anything is opened or restored
             check_record_target(Path(options.record), options.source, options.record_overwrite)
         self._restore()
@@ -451,6 +518,11 @@ class Daemon:
                 self.publisher = Publisher(self.name, cfg, encoding=options.encoding, status=self.status)
             else:
                 self.publisher = publisher_factory(self.name, self.status)
+            if hasattr(self.publisher, "serve_params"):
+                self.publisher.serve_params(self._on_params_put, self._on_params_query)
+            self._reload_thread = threading.Thread(target=self._reload_worker, name=f"cablesvc-reload-{self.name}",
+                                                   daemon=True)
+            self._reload_thread.start()
             self.source.open()
             self._check_input_readable()
             # only now, with the input read, is anything opened for writing
@@ -635,6 +707,174 @@ class Daemon:
             log.error("%s", self.snapshot_error)
         self._last_snapshot = time.monotonic()
 
+    # -- parameter reload -----------------------------------------------------------------
+    def _model_status(self) -> dict[str, Any]:
+        """The active model for status: name, where its parameters came from, fingerprint,
+        parameters, the discovered terms its file lists, since when it is active."""
+        p = self.params
+        terms = p.identification.get("discovered_terms") if isinstance(p.identification, dict) else None
+        return {"name": p.model, "params_file": p.source, "source": self.params_origin,
+                "fingerprint": self.fingerprint, "params": jsonable(p.params), "options": jsonable(p.options),
+                "terms": list(terms) if isinstance(terms, (list, tuple)) else [],
+                "active_since": dict(self.params_since), "identification": jsonable(p.identification)}
+
+    def request_reload(self, text: str | bytes | None = None, *, origin: str = "SIGHUP", reply=None) -> None:
+        """Ask for new parameters without waiting: ``text`` the TOML text of a parameter
+        file, or None to re-read :attr:`params_file`. Safe in a signal handler (a put on a
+        SimpleQueue); the reload thread does the work (:meth:`reload_params`). ``reply``:
+        called with the outcome (a dict) when it is known."""
+        self._reload_q.put((text, origin, reply))
+
+    def _reload_worker(self) -> None:
+        while True:
+            item = self._reload_q.get()
+            if item is None:
+                return
+            text, origin, reply = item
+            try:
+                result = self.reload_params(text, origin=origin)
+            except Exception as e:  # noqa: BLE001 - the thread must survive anything
+                log.exception("parameter reload failed: %s", e)
+                result = {"accepted": False, "origin": origin, "reason": f"internal error: {e}"}
+            if reply is not None:
+                try:
+                    reply(result)
+                except Exception as e:  # noqa: BLE001
+                    log.error("replying to a parameter reload failed: %s", e)
+
+    def _on_params_put(self, data: bytes, origin: str) -> None:
+        """A put on cablesvc/<robot>/params (a Zenoh thread): queue it, return at once."""
+        self.request_reload(bytes(data), origin=origin)
+
+    def _on_params_query(self, query, data: bytes | None) -> None:
+        """A get on cablesvc/<robot>/params (a Zenoh thread). With a payload: a reload whose
+        outcome is the reply; without: the active parameters (TOML) and their fingerprint."""
+        pub = self.publisher
+        if data is None or not bytes(data).strip():
+            pub.reply_params(query, {"robot": self.name, "model": self._model_status(),
+                                     "toml": self.params.to_toml()})
+            return
+        self.request_reload(bytes(data), origin=f"zenoh get on cablesvc/{self.name}/params",
+                            reply=lambda result: pub.reply_params(query, result) if pub is not None else None)
+
+    def reload_params(self, text: str | bytes | None = None, *, origin: str = "api",
+                      timeout: float = 5.0) -> dict[str, Any]:
+        """Load new parameters: parse and check ``text`` (a parameter file's TOML) or the
+        parameter file (None), build and warm up the new kernel here (not in the loop), hand
+        it to the loop and wait up to ``timeout`` s until the loop has switched at a tick
+        boundary. Returns the outcome: ``accepted``, ``reason`` (refused), ``fingerprint``,
+        ``model``, ``state`` (what happened to the hysteresis state), ``applied`` and the
+        ``seq`` / ``t`` of the last tick before the switch. Never raises for a bad file."""
+        from cablesvc.config.params import ParamFileError, load_params, parse_params
+
+        try:
+            if text is None:
+                if self.params_file is None:
+                    raise ParamFileError("(no parameter file)", [
+                        "the daemon started with nominal parameters and has no file to re-read; put a parameter "
+                        f"file on cablesvc/{self.name}/params or restart with --params"])
+                params = load_params(self.params_file)
+                src = f"file {self.params_file} ({origin})"
+            else:
+                params = parse_params(text, f"<{origin}>")
+                src = origin
+            if params.robot and params.robot != self.name:
+                raise ParamFileError(params.source, [f"robot: the parameters were identified for robot "
+                                                     f"{params.robot!r}, not {self.name!r}"])
+            new = Predictor(self.geom, params)       # builds the model: checks the cable count, options, ...
+            params.amplitude_range()                 # the alarms need it valid
+            last = self._last_tick
+            if last is not None:                     # one tick now: compiles and allocates off the loop
+                try:
+                    new.tick(last.t, last.motor_length, last.position, last.orientation, last.force,
+                             last.temperature)
+                except Exception as e:  # noqa: BLE001 - only a warm-up: the loop counts what fails live
+                    log.warning("the new kernel's warm-up tick failed (%s); switching anyway", e)
+                new.reset()
+        except ParamFileError as e:
+            where = "" if str(e.path).startswith("<") else f"{e.path}: "
+            return self._refuse(origin, where + "; ".join(e.problems))
+        except Exception as e:  # noqa: BLE001 - whatever the file holds, the daemon goes on
+            return self._refuse(origin, f"{type(e).__name__}: {e}")
+        change = _ParamsChange(params=params, predictor=new, fingerprint=params_fingerprint(params), origin=src)
+        with self._state_lock:
+            prev = self._pending_params
+            if prev is not None:                     # a newer request replaces one not yet taken
+                prev.result = {"accepted": False, "origin": prev.origin, "applied": False,
+                               "reason": "superseded by a newer reload before the loop took it"}
+                prev.done.set()
+            self._pending_params = change
+        if not change.done.wait(timeout):
+            return {"accepted": True, "applied": False, "origin": src, "fingerprint": change.fingerprint,
+                    "model": params.model, "reason": f"the loop has not taken it within {timeout:g} s; it switches "
+                                                     "between the next two ticks"}
+        return change.result
+
+    def _refuse(self, origin: str, reason: str) -> dict[str, Any]:
+        """A reload that is refused: logged, counted, kept for status, raised as the
+        ``params_refused`` alarm (once; its message follows the latest refusal)."""
+        from cablesvc.alarms import ALARM_CODES, AlarmEvent
+
+        log.error("new parameters (%s) refused, the old ones stay active (%s): %s", origin, self.fingerprint, reason)
+        result = {"accepted": False, "applied": False, "origin": origin, "reason": reason,
+                  "active_fingerprint": self.fingerprint, "wall_time": time.time()}
+        with self._state_lock:
+            self.reload_counts["refused"] += 1
+            self.last_reload = result
+            from cablesvc.sources.base import Problem
+            self.problems.append(Problem(time.time(), "params_refused", f"{origin}: {reason}"[:2000]))
+            t = self.stats.last_t if self.stats.last_t is not None else 0.0
+            ev = AlarmEvent(action="raise", code="params_refused", cable=None,
+                            severity=ALARM_CODES["params_refused"][0], t=t,
+                            since=self._params_alarm.since if self._params_alarm is not None else t,
+                            seq=self.stats.last_seq,
+                            message=f"new parameters ({origin}) refused, {self.params.model} {self.fingerprint} "
+                                    f"stays active: {reason}"[:2000])
+            self._params_alarm = ev
+            self._emit(ev)
+        return result
+
+    def _apply_params(self) -> None:
+        """Switch to the pending parameters (the loop, between two ticks, under the state lock)."""
+        from cablesvc.alarms import AlarmEvent
+
+        change, self._pending_params = self._pending_params, None
+        old, new = self.predictor, change.predictor
+        state = _hand_over(old, new)
+        s = self.stats
+        t = s.last_t if s.last_t is not None else 0.0
+        changed = change.fingerprint != self.fingerprint
+        old_desc = f"{self.params.model} {self.fingerprint}"
+        self.predictor = new
+        self.params = change.params
+        self.fingerprint = change.fingerprint
+        self.params_origin = change.origin
+        self.params_since = {"wall_time": time.time(), "seq": s.last_seq, "t": s.last_t, "origin": change.origin}
+        events = self.alarms.set_params(change.params, t, s.last_seq)
+        if changed:        # another model: the residual's baseline is another one too
+            events += self.alarms.reset_drift()
+        if self._params_alarm is not None:
+            raised, self._params_alarm = self._params_alarm, None
+            events.append(AlarmEvent("clear", "params_refused", None, "info", t, raised.since, s.last_seq,
+                                     f"new parameters ({change.origin}) accepted"))
+        for ev in events:
+            self._emit(ev)
+        if self._pending_restore is not None and changed:
+            self._pending_restore = None             # that state belongs to the old parameters
+            self.snapshot_error = "not restored: the parameters changed before the first tick"
+        if self.snapshot_path is not None:
+            self._last_snapshot = -math.inf          # the next loop pass writes one for the new parameters
+        self.reload_counts["accepted"] += 1
+        result = {"accepted": True, "applied": True, "origin": change.origin, "model": change.params.model,
+                  "fingerprint": change.fingerprint, "previous": old_desc, "state": state,
+                  "seq": s.last_seq, "t": s.last_t, "wall_time": time.time()}
+        self.last_reload = result
+        log.info("new parameters active from the tick after seq %s (t %s): %s %s from %s (was %s); hysteresis "
+                 "state: %s", s.last_seq, s.last_t, change.params.model, change.fingerprint, change.origin,
+                 old_desc, state)
+        change.result = result
+        change.done.set()
+
     # -- status ---------------------------------------------------------------------------
     def tick_rate(self) -> float:
         w = list(self.stats.rate_window)
@@ -654,6 +894,7 @@ class Daemon:
         # the loop (or the source's receive thread) changes these while a Zenoh thread runs
         # this: read each once, so that a None set in between cannot fail the query
         fault_alarm = self._fault_alarm
+        params_alarm = self._params_alarm
         recorder = self.recorder or self._recorder_closed
         counters = self.source.counters.as_dict()
         if s.kernel_errors:
@@ -674,11 +915,13 @@ class Daemon:
             "input": {"source": self.opt.source.get("kind"), **counters},
             "recent_problems": [{"wall_time": p.wall_time, "reason": p.reason, "message": p.message}
                                 for p in list(self.problems)[-10:]],
-            "model": {"name": self.params.model, "params_file": self.params.source,
-                      "fingerprint": self.fingerprint, "params": jsonable(self.params.params),
-                      "identification": jsonable(self.params.identification)},
+            "model": self._model_status(),
+            "params_reload": {"file": self.params_file, "key": f"cablesvc/{self.name}/params",
+                              **self.reload_counts, "pending": self._pending_params is not None,
+                              "last": self.last_reload},
             "alarms_active": [e.payload() for e in self.alarms.active()]
-                             + ([fault_alarm.payload()] if fault_alarm is not None else []),
+                             + ([fault_alarm.payload()] if fault_alarm is not None else [])
+                             + ([params_alarm.payload()] if params_alarm is not None else []),
             "snapshot": {"path": str(self.snapshot_path) if self.snapshot_path else None,
                          "restored_from": self.restored_from, "error": self.snapshot_error},
             "last": {"seq": s.last_seq, "t": s.last_t},
@@ -697,6 +940,9 @@ class Daemon:
     def step(self, tick) -> None:
         """Process one validated input tick."""
         s = self.stats
+        if self._pending_params is not None:        # new parameters: switch before this tick
+            self._apply_params()
+        self._last_tick = tick
         if self._pending_restore is not None:
             self._resume(tick)
         try:
@@ -842,6 +1088,10 @@ class Daemon:
                         with self._state_lock:
                             self.step(tick)
                 self._input_problems(src.problems())
+                if self._pending_params is not None:      # no tick came: switch between ticks anyway
+                    with self._state_lock:
+                        if self._pending_params is not None:
+                            self._apply_params()
                 now = time.monotonic()
                 if tick is None or now - last_idle > 0.01:
                     with self._state_lock:
@@ -881,6 +1131,7 @@ class Daemon:
         Between the end of :meth:`run` and the source's close, a receive thread can still
         accept a tick or two (it queues them once the direct sink is gone). Each is stepped
         and published here, so that every accepted tick has its output even at shutdown."""
+        self._reload_q.put(None)                  # the reload thread ends (a pending change is dropped)
         try:
             self.source.close()
         except Exception as e:  # noqa: BLE001
@@ -899,6 +1150,11 @@ class Daemon:
                         break
                     self.step(tick)
             self.snapshot()
+            change, self._pending_params = self._pending_params, None
+            if change is not None:                 # prepared, but the loop stopped before the switch
+                change.result = {"accepted": True, "applied": False, "origin": change.origin,
+                                 "fingerprint": change.fingerprint, "reason": "the daemon stopped before the switch"}
+                change.done.set()
         self._close_outputs()
 
     def exit_problems(self) -> list[str]:

@@ -9,6 +9,12 @@ Key expressions, per robot (``keys(robot)``):
                              block under congestion: an alarm is never dropped)
 ``cablesvc/<robot>/status``  queryable: a get returns the daemon's status as JSON
 ``cablesvc/<robot>/alive``   liveliness token, present while the daemon runs
+``cablesvc/<robot>/params``  subscriber: a put of a parameter file's TOML text makes the
+                             daemon switch to it (at a tick boundary; a bad file is
+                             refused and the old parameters stay); queryable: a get with
+                             such a payload does the same and replies with the outcome
+                             (JSON), a get without payload replies with the active
+                             parameters (:meth:`Publisher.serve_params`)
 =========================== ============================================================
 
 Payloads and encodings are in :mod:`cablesvc.service.messages` and ``docs/messages.md``.
@@ -107,6 +113,7 @@ class Keys(NamedTuple):
     alarms: str
     status: str
     alive: str
+    params: str
 
 
 def keys(robot: str | None) -> Keys:
@@ -118,7 +125,7 @@ def keys(robot: str | None) -> Keys:
         if not r or any(c in r for c in "/*$?#") or r != r.strip():
             raise ValueError(f"robot name {robot!r} cannot be a Zenoh key chunk (no '/', '*', '$', '?', '#')")
     base = f"{PREFIX}/{r}"
-    return Keys(f"{base}/forces", f"{base}/alarms", f"{base}/status", f"{base}/alive")
+    return Keys(f"{base}/forces", f"{base}/alarms", f"{base}/status", f"{base}/alive", f"{base}/params")
 
 
 def _robot_of(key: str) -> str:
@@ -201,6 +208,50 @@ class Publisher:
         except Exception:  # noqa: BLE001 - session closing under us
             pass
 
+    def serve_params(self, on_put: Callable[[bytes, str], None],
+                     on_query: Callable[[Any, bytes | None], None]) -> None:
+        """Take new parameters on the params key (``cablesvc/<robot>/params``): a put calls
+        ``on_put(payload bytes, origin)`` and a get calls ``on_query(query, payload bytes or
+        None)`` on the Zenoh thread that received it. Both must return at once (the daemon
+        queues the work for its reload thread, which replies to the query later with
+        :meth:`reply_params`). Who may put or get there is the access control's business
+        (``deploy/zenoh-router.json5``: only the ``cablesvc-operator`` certificate)."""
+        k = self.keys.params
+
+        def put_cb(sample) -> None:
+            if sample.kind != zenoh.SampleKind.PUT:
+                return                                  # a delete carries no parameters
+            try:
+                on_put(sample.payload.to_bytes(), f"zenoh put on {k}")
+            except Exception:  # noqa: BLE001 - a callback must never raise into Zenoh
+                pass
+
+        def query_cb(query) -> None:
+            try:
+                payload = query.payload
+                on_query(query, None if payload is None else payload.to_bytes())
+            except Exception as e:  # noqa: BLE001
+                try:
+                    query.reply_err(f"params failed: {e}")
+                except Exception:  # noqa: BLE001
+                    pass
+
+        self._params_sub = self.session.declare_subscriber(k, put_cb)
+        self._params_q = self.session.declare_queryable(k, query_cb)
+
+    def reply_params(self, query, answer: dict) -> None:
+        """Reply (JSON) to a get on the params key; never raises (the querier may be gone)."""
+        try:
+            body = json.dumps(jsonable(answer), separators=(",", ":"), allow_nan=False)
+            query.reply(self.keys.params, body, encoding=zenoh.Encoding(JSON_ENCODING))
+        except Exception:  # noqa: BLE001
+            pass
+        finally:
+            try:
+                query.drop()
+            except Exception:  # noqa: BLE001 - older bindings finalise the query when it is freed
+                pass
+
     def _on_matching(self, status) -> None:
         self._forces_matched = bool(getattr(status, "matching", status))
 
@@ -243,7 +294,8 @@ class Publisher:
         self.alarms_published += 1
 
     def _undeclare(self) -> None:
-        for obj in (getattr(self, "_matching", None), getattr(self, "_token", None), getattr(self, "_queryable", None),
+        for obj in (getattr(self, "_params_sub", None), getattr(self, "_params_q", None),
+                    getattr(self, "_matching", None), getattr(self, "_token", None), getattr(self, "_queryable", None),
                     getattr(self, "_alarms", None), getattr(self, "_forces", None)):
             if obj is not None:
                 try:
