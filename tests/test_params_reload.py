@@ -377,3 +377,40 @@ def test_router_access_control_lets_only_the_operator_put_parameters(tmp_path):
         for o in reversed(opened):
             o.close()
         router.close()
+
+
+# ---- several robots in one daemon: each robot its own params key -------------------------------
+
+def test_fleet_each_robot_takes_parameters_on_its_own_key(tmp_path):
+    """A fleet (one Zenoh session, two robots): a put on cablesvc/ipanema3/params changes
+    ipanema3's model only; planar4 keeps its parameters and sees no reload."""
+    from cablesvc.service.fleet import Fleet
+
+    opts = []
+    for name, seed in (("ipanema3", 3), ("planar4", 4)):
+        r = simulate_recording(name, "trajectory", None, duration=2.0, rate=200.0, seed=seed)
+        path = tmp_path / f"{name}.mcap"
+        write_recording(path, r)
+        robot = load_robot(name)
+        opts.append(DaemonOptions(robot=robot, params=nominal_params(robot.geometry()),
+                                  source={"kind": "replay", "path": str(path), "speed": 0}))
+    port = free_tcp_port()
+    new = _linear(load_robot("ipanema3").geometry())
+    fleet = Fleet(opts, listen=(f"tcp/127.0.0.1:{port}",))
+    client = _client(port)
+    try:
+        a, b = fleet.daemons["ipanema3"], fleet.daemons["planar4"]
+        fp_b = b.fingerprint
+        client.put(keys("ipanema3").params, new.to_toml())
+        _wait(lambda: a.status()["params_reload"]["pending"], what="ipanema3's reload prepared")
+        fleet.run()
+        st = fleet.status()
+    finally:
+        client.close()
+        fleet.close()
+    assert st["ipanema3"]["model"]["name"] == "linear"
+    assert st["ipanema3"]["model"]["fingerprint"] == params_fingerprint(new)
+    assert st["ipanema3"]["params_reload"]["key"] == "cablesvc/ipanema3/params"
+    assert st["planar4"]["model"]["fingerprint"] == fp_b and st["planar4"]["model"]["name"] == "amplitude"
+    assert st["planar4"]["params_reload"]["accepted"] == 0 and st["planar4"]["params_reload"]["refused"] == 0
+    assert st["ipanema3"]["ticks"] == 400 and st["planar4"]["ticks"] == 400
