@@ -33,7 +33,10 @@ Real use picks a source:
 and --zenoh-config FILE for a router, TLS or access control (deploy/zenoh-router.json5).
 
 Key expressions: cablesvc/<robot>/forces, cablesvc/<robot>/alarms, cablesvc/<robot>/status
-(queryable), cablesvc/<robot>/alive (liveliness). SIGINT/SIGTERM shut down cleanly; the
+(queryable), cablesvc/<robot>/alive (liveliness). SIGHUP re-reads the --params file, and a
+put of a parameter file's TOML text on cablesvc/<robot>/params switches to it: between two
+ticks, keeping the hysteresis state within a model family; a bad file is refused with the
+reason and the old parameters stay (status: model, params_reload). SIGINT/SIGTERM shut down cleanly; the
 hysteresis state is snapshotted every few seconds and at shutdown and restored at start
 when it belongs to the same input and the first tick agrees with it (live sources only by
 default: a replay or the embedded simulator uses a state file only when given --snapshot).

@@ -148,7 +148,10 @@ STATUS_SCHEMA: dict[str, Any] = {
                                                         "p999_us, max_us"},
         "input": {"type": "object", "description": "bus source and its counters"},
         "recent_problems": {"type": "array", "items": {"type": "object"}},
-        "model": {"type": "object", "description": "cable model: name, params_file, fingerprint, ..."},
+        "model": {"type": "object", "description": "active cable model: name, params_file, source, fingerprint, "
+                                                   "params, options, terms (discovered_terms), active_since, ..."},
+        "params_reload": {"type": "object", "description": "parameter reloads (SIGHUP, cablesvc/<robot>/params): "
+                                                           "file, key, accepted, refused, pending, last outcome"},
         "alarms_active": {"type": "array", "items": ALARM_SCHEMA, "description": "raise events of active alarms"},
         "snapshot": {"type": "object"},
         "last": {"type": "object", "description": "seq and t of the last tick"},
