@@ -62,6 +62,7 @@ from cablesvc.service.messages import forces_payload
 log = logging.getLogger("cablesvc.daemon")
 
 SNAPSHOT_FORMAT = 2            # 2: the meta names the source and holds the last elongation
+MAX_PARAMS_BYTES = 1_000_000   # a parameter file put over Zenoh (identified files are a few kB)
 
 
 # ---- options ---------------------------------------------------------------------------
@@ -768,6 +769,9 @@ class Daemon:
         from cablesvc.config.params import ParamFileError, load_params, parse_params
 
         try:
+            if text is not None and len(text) > MAX_PARAMS_BYTES:
+                raise ParamFileError(f"<{origin}>", [f"{len(text)} bytes: a parameter file is at most "
+                                                     f"{MAX_PARAMS_BYTES} bytes"])
             if text is None:
                 if self.params_file is None:
                     raise ParamFileError("(no parameter file)", [
@@ -805,10 +809,16 @@ class Daemon:
                 prev.done.set()
             self._pending_params = change
         if not change.done.wait(timeout):
+            log.warning("new parameters (%s, %s %s) wait for the loop: it has not switched within %g s", src,
+                        params.model, change.fingerprint, timeout)
             return {"accepted": True, "applied": False, "origin": src, "fingerprint": change.fingerprint,
                     "model": params.model, "reason": f"the loop has not taken it within {timeout:g} s; it switches "
                                                      "between the next two ticks"}
-        return change.result
+        r = change.result
+        if r.get("applied"):
+            log.info("new parameters active from the tick after seq %s (t %s): %s %s from %s (was %s); hysteresis "
+                     "state: %s", r["seq"], r["t"], r["model"], r["fingerprint"], r["origin"], r["previous"], r["state"])
+        return r
 
     def _refuse(self, origin: str, reason: str) -> dict[str, Any]:
         """A reload that is refused: logged, counted, kept for status, raised as the
@@ -869,11 +879,8 @@ class Daemon:
                   "fingerprint": change.fingerprint, "previous": old_desc, "state": state,
                   "seq": s.last_seq, "t": s.last_t, "wall_time": time.time()}
         self.last_reload = result
-        log.info("new parameters active from the tick after seq %s (t %s): %s %s from %s (was %s); hysteresis "
-                 "state: %s", s.last_seq, s.last_t, change.params.model, change.fingerprint, change.origin,
-                 old_desc, state)
         change.result = result
-        change.done.set()
+        change.done.set()                          # the reload thread logs it (no log I/O in the loop)
 
     # -- status ---------------------------------------------------------------------------
     def tick_rate(self) -> float:
