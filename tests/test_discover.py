@@ -12,7 +12,7 @@ import pytest
 from cablesvc.config.params import load_params
 from cablesvc.discover import Term, discover, library
 from cablesvc.discover.locate import change_points, noise_floor
-from cablesvc.discover.terms import _design
+from cablesvc.models.terms import _design
 from cablesvc.simulate import TruthConfig, effect_from_spec, simulate_recording
 
 ROBOT = "ipanema3"
@@ -71,7 +71,7 @@ def test_deadtime_and_pulley_on_one_cable():
 
 
 def _synthetic_signals(n=2000, seed=0):
-    from cablesvc.discover.terms import Signals
+    from cablesvc.models.terms import Signals
     rng = np.random.default_rng(seed)
     t = np.arange(n) * 0.01
     x = 1e-3 * np.sin(2 * np.pi * 0.3 * t)[:, None]

@@ -1,7 +1,7 @@
 """Discovery: find where a model and a recording differ, name the physics the model leaves
 out, model it and show the held-out improvement (issue 6; docs/discovery.md).
 
-* :mod:`~cablesvc.discover.terms`: the library of named physics terms (one class each);
+* :mod:`~cablesvc.models.terms`: the library of named physics terms (one class each);
 * :mod:`~cablesvc.discover.locate`: which cables, time segments and state regions;
 * :mod:`~cablesvc.discover.select`: fitting and held-out forward selection;
 * :mod:`~cablesvc.discover.pipeline`: :func:`discover` end to end;
@@ -10,7 +10,7 @@ out, model it and show the held-out improvement (issue 6; docs/discovery.md).
 
 from cablesvc.discover.pipeline import Discovery, DiscoveryError, Finding, discover
 from cablesvc.discover.select import ForwardSelector, SelectOptions
-from cablesvc.discover.terms import LIBRARY, Signals, Term, library, register
+from cablesvc.models.terms import LIBRARY, Signals, Term, library, register
 
 __all__ = ["Discovery", "DiscoveryError", "Finding", "ForwardSelector", "LIBRARY", "SelectOptions", "Signals",
            "Term", "discover", "library", "register"]

@@ -25,7 +25,7 @@ import numpy as np
 from scipy import stats
 
 from cablesvc.discover.select import _Cache, _designs, _solve, _strip
-from cablesvc.discover.terms import Signals, Term
+from cablesvc.models.terms import Signals, Term
 
 __all__ = ["block_ids", "loo_errors", "block_gain_test", "excess_test", "holm", "effective_n"]
 

@@ -23,63 +23,19 @@ The terms that only reshape the baseline's own hysteresis (``amplitude``, ``asym
 ``boucwen``: :attr:`Term.model_form`) and the sensor's offset and gain (which a force
 offset and stiffness scale also produce; :mod:`cablesvc.discover.equilibrium` tells them
 apart) are inside this nuisance and are not offered as concealed effects.
+
+The class itself lives with the other terms in :mod:`cablesvc.models.terms` (its offline
+and live forms in one place): the kernel runs the recalibration a discovery writes
+(``term_baseline`` in the parameter file) every tick, like any discovered term.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
-from cablesvc.discover.terms import Signals, Term, _design, smooth_sign
+from cablesvc.models.terms import Recalibration, hysteretic_part
 
 __all__ = ["Recalibration", "hysteretic_part", "describe_recalibration"]
-
-
-def hysteretic_part(s: Signals, c: int) -> np.ndarray:
-    """The baseline's hysteretic part h (N,) [N] of cable ``c``: f0 minus the cubic in the
-    elongation that fits f0 best on the training ticks (the backbone)."""
-    x = s.x[:, c]
-    xm = s.train_mean(x)
-    sx = max(float(np.std(x[s.train] - xm)), 1e-12)
-    xi = (x - xm) / sx
-    V = np.column_stack([np.ones_like(xi), xi, xi ** 2, xi ** 3])
-    coef, *_ = np.linalg.lstsq(V[s.train], s.f0[s.train, c], rcond=None)
-    return s.f0[:, c] - V @ coef
-
-
-class Recalibration(Term):
-    """Recalibration of the baseline's own parameters plus a smooth discrepancy in its own
-    state (see the module docstring for the equation and units). Owns the generic offset
-    and gain columns (``pulley`` k0 and ``temperature`` g are held at 0 beside it)."""
-
-    name = "baseline"
-    label = "baseline recalibration (its own parameters and a smooth discrepancy in its own state)"
-    equation = ("o + k_s f0 + a_h h + c2 xi^2/s + c3 xi^3/s^2 + K1_A (A - mean A) xi + d_A A tanh(v/v_s)"
-                "  (002 eq 8, 001 Ch 4; Kennedy & O'Hagan 2001)")
-    variable = "baseline force f0 [N]"
-    owns_nuisance = True
-
-    def design(self, s, c, h):
-        x, f0, A = s.x[:, c], s.f0[:, c], s.amplitude[:, c]
-        xi = x - s.train_mean(x)
-        sx = max(float(np.std(xi[s.train])), 1e-12)
-        cols = [np.ones(s.n), f0, hysteretic_part(s, c), xi ** 2 / sx, xi ** 3 / sx ** 2]
-        names = ["o", "k_s", "a_h", "c2", "c3"]
-        units = ["N", "-", "-", "N", "N"]
-        if float(np.ptp(A)) > 1e-6:
-            cols += [(A - s.train_mean(A)) * xi, A * smooth_sign(s.v[:, c], 1e-4)]
-            names += ["K1_A", "d_A"]
-            units += ["N/m^2", "N/m"]
-        return _design(cols, names, units)
-
-    def evidence(self, s, c, h):
-        return s.f0[:, c]
-
-    def physical(self, params, h, s, c):
-        f0 = s.f0[:, c]
-        return {**params, "mean_f0_N": float(np.mean(f0)),
-                "offset_at_mean_N": float(params.get("o", 0.0) + params.get("k_s", 0.0) * np.mean(f0))}
 
 
 def describe_recalibration(params: dict[str, Any]) -> str:

@@ -12,7 +12,7 @@ baseline parameter file and
    nothing else touches. The designs use only inputs (elongation, pose, temperature,
    baseline prediction), never the measured force, so no residual crosses the split;
 2. locates the residual (:mod:`cablesvc.discover.locate`);
-3. explains it with the term library (:mod:`cablesvc.discover.terms`) and the selector
+3. explains it with the term library (:mod:`cablesvc.models.terms`) and the selector
    (:mod:`cablesvc.discover.select`), stating the evidence per term;
 4. refits the chosen terms (training + validation for the test score, all ticks for the
    parameter file) and writes them into a parameter file;
@@ -36,11 +36,12 @@ from cablesvc.config.params import ModelParams, default_params, load_params
 from cablesvc.config.robot import Robot, load_robot
 from cablesvc.discover.locate import locate
 from cablesvc.discover.select import Fit, ForwardSelector, Selection, fit_terms
-from cablesvc.discover.terms import Signals, Term, library, reversal_amplitude
+from cablesvc.models.terms import Signals, Term, library, reversal_amplitude
 from cablesvc.kinematics import inverse_kinematics
 from cablesvc.models import simulate
 
-__all__ = ["Discovery", "Finding", "DiscoveryError", "baseline_params", "build_signals", "split_blocks", "discover"]
+__all__ = ["Discovery", "Finding", "DiscoveryError", "baseline_params", "backward_rate", "build_signals", "split_blocks",
+           "discover"]
 
 
 class DiscoveryError(ValueError):
@@ -83,13 +84,26 @@ def build_signals(rec: Any, robot: Robot, params: ModelParams) -> Signals:
     x = length - ml
     model = params.build(m, 1)
     f0 = simulate(model, x, np.r_[dt, np.diff(t)], l0=ml)
-    return Signals(t=t, dt=dt, y=np.asarray(rec.force, float), f0=f0, x=x, v=np.gradient(x, t, axis=0),
-                   v_slide=-np.gradient(ml, t, axis=0), wrap=np.array(ik.wrap_angle),
+    return Signals(t=t, dt=dt, y=np.asarray(rec.force, float), f0=f0, x=x, v=backward_rate(x, t),
+                   v_slide=-backward_rate(ml, t), wrap=np.array(ik.wrap_angle),
                    free_length=np.array(ik.free_length),
                    temperature=None if rec.temperature is None else np.asarray(rec.temperature, float),
                    ea=np.asarray(geom.ea, float), has_pulley=np.asarray(geom.has_pulley, bool),
                    amplitude=reversal_amplitude(x), train=np.ones(t.size, bool),
                    cable_names=tuple(geom.cable_names))
+
+
+def backward_rate(a: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """d a / dt (N, ...) by backward differences, 0 on the first tick and where time does
+    not advance: what the live kernel can compute at each tick (:class:`TermStack`), so
+    that a term fitted here runs live with the same numbers."""
+    a = np.asarray(a, float)
+    out = np.zeros_like(a)
+    dt = np.diff(t)
+    ok = dt > 0
+    inv = np.where(ok, 1.0 / np.where(ok, dt, 1.0), 0.0)
+    out[1:] = (a[1:] - a[:-1]) * inv.reshape((-1,) + (1,) * (a.ndim - 1))
+    return out
 
 
 def split_blocks(t: np.ndarray, block: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -239,19 +253,29 @@ class Discovery:
 
     def augmented_params(self) -> ModelParams:
         """The baseline parameter file with the discovered terms (fitted on all ticks) in
-        its ``[identification]`` section (``discovered_terms``, and per term a table of
-        parameters per cable: cables without the term get 0)."""
+        its ``[identification]`` section: ``discovered_terms`` (the named terms) and a table
+        ``term_<name>`` per term the model uses (the named ones and, with an identified
+        baseline, the baseline's recalibration ``term_baseline``) holding per cable its
+        linear parameters, hyper-parameters and the reference values its columns took from
+        the training ticks (cables without the term get 0). The kernel runs exactly these
+        (:class:`cablesvc.models.terms.TermStack`): :meth:`predict` is what it computes."""
         p = self.baseline
-        ident = dict(p.identification)
+        ident = {k: v for k, v in p.identification.items()
+                 if not (k.startswith("term_") or k in ("discovered_terms",))}
         m = self.residual.shape[1]
         ident["discovered_terms"] = self.named
-        for f in self.findings:
-            table: dict[str, list[float]] = {}
-            for c in f.cables:
-                fit = self.full[c]
-                for k, v in {**fit.params.get(f.term, {}), **fit.hyper.get(f.term, {})}.items():
+        tables: dict[str, dict[str, list[float]]] = {}
+        for c, fit in self.full.items():
+            for t in fit.terms:
+                table = tables.setdefault(t.name, {})
+                vals = {**fit.params.get(t.name, {}), **fit.hyper.get(t.name, {}),
+                        **{k: v for k, v in fit.refs.get(t.name, {}).items() if k in t.ref_names}}
+                for k, v in vals.items():
                     table.setdefault(k, [0.0] * m)[c] = float(v)
-            ident[f"term_{f.term}"] = table
+        for name in self.named:
+            tables.setdefault(name, {})
+        for name, table in tables.items():
+            ident[f"term_{name}"] = table
         ident["discovery_rmse_before"] = [float(v) for v in self.rmse_before]
         ident["discovery_rmse_after"] = [float(v) for v in self.rmse_after]
         return ModelParams(model=p.model, params=dict(p.params), options=dict(p.options), tables=dict(p.tables),
@@ -312,7 +336,7 @@ def discover(recording: Any, robot: Union[Robot, str, "os.PathLike[str]"],
              exact_baseline: bool = False) -> Discovery:
     """Run discovery on ``recording`` (a :class:`~cablesvc.recording.Recording` or a path)
     of ``robot``; ``params`` the baseline (None: nominal); ``terms`` the library (default
-    :func:`~cablesvc.discover.terms.library`); ``selector`` (default
+    :func:`~cablesvc.models.terms.library`); ``selector`` (default
     :class:`~cablesvc.discover.select.ForwardSelector`); ``block`` [s] the split's block.
 
     ``exact_baseline``: False (default) for an identified, imperfect baseline: the
@@ -414,7 +438,7 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     from cablesvc.discover.locate import state_regions
     from cablesvc.discover.nuisance import Recalibration, describe_recalibration
     from cablesvc.discover.select import _Cache
-    from cablesvc.discover.terms import LIBRARY
+    from cablesvc.models.terms import LIBRARY
 
     m = s.m
     nuis = Recalibration()

@@ -55,7 +55,7 @@ def _fig_term(d, f, path: Path) -> None:
     test = d.masks["test"]
     n = len(f.cables)
     fig, axes = plt.subplots(1, n, figsize=(3.6 * n + 0.5, 3.2), squeeze=False)
-    from cablesvc.discover.terms import LIBRARY
+    from cablesvc.models.terms import LIBRARY
     term = LIBRARY.get(f.term)
     for ax, c in zip(axes[0], f.cables):
         fit = d.final[c]

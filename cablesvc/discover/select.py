@@ -33,7 +33,7 @@ import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.optimize import lsq_linear, minimize_scalar
 
-from cablesvc.discover.terms import Design, Signals, Term
+from cablesvc.models.terms import Design, Signals, Term
 
 __all__ = ["Fit", "Selection", "SelectOptions", "ForwardSelector", "fit_terms", "predict_terms"]
 
@@ -50,6 +50,8 @@ class Fit:
     pred: np.ndarray
     sse_fit: float
     dropped: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    #: per term name, the reference values its columns took from the training ticks
+    refs: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @property
     def names(self) -> list[str]:
@@ -173,7 +175,8 @@ def _assemble(terms, hypers, designs, plist, r, mask) -> Fit:
     pred = np.sum(list(contrib.values()), axis=0) if contrib else np.zeros(r.shape[0])
     e = (r - pred)[mask]
     return Fit(terms=list(terms), hyper={t.name: dict(h) for t, h in zip(terms, hypers)}, params=params,
-               contrib=contrib, pred=pred, sse_fit=float(e @ e), dropped=dropped)
+               contrib=contrib, pred=pred, sse_fit=float(e @ e), dropped=dropped,
+               refs={t.name: dict(d.refs) for t, d in zip(terms, designs)})
 
 
 def _delay(terms: list[Term], hs: list[dict[str, float]]) -> float:

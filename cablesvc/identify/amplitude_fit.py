@@ -76,6 +76,7 @@ from cablesvc.identify.local import refine
 from cablesvc.identify.result import IdentifyResult
 from cablesvc.models import AmplitudeDependent
 from cablesvc.models.amplitude import damping_normaliser
+from cablesvc.models.reversal import reversal_amplitude, reversal_points
 
 __all__ = [
     "Level", "segment_levels", "reversal_points", "reversal_amplitude", "LevelFit", "AmplitudeFit", "fit_levels", "level_trace",
@@ -108,82 +109,6 @@ class Level:
     @property
     def omega(self) -> float:
         return float(np.pi / self.half_period)
-
-
-@numba.njit(cache=True)
-def _turns(x, eps):
-    """(extremum indices, confirmation indices) of the turning points of x: see
-    :func:`reversal_points`."""
-    n = x.size
-    ext_at = np.empty(n, np.int64)
-    seen_at = np.empty(n, np.int64)
-    k = 0
-    direction = 0
-    hi = lo = ext = 0
-    for i in range(1, n):
-        xi = x[i]
-        if direction == 0:             # not yet moved by eps: no direction, no turn
-            if xi > x[hi]:
-                hi = i
-            if xi < x[lo]:
-                lo = i
-            if x[hi] - x[lo] > eps:
-                direction = 1 if hi > lo else -1
-                ext = hi if direction == 1 else lo
-        elif direction == 1:
-            if xi >= x[ext]:
-                ext = i
-            elif x[ext] - xi > eps:
-                ext_at[k] = ext
-                seen_at[k] = i
-                k += 1
-                direction, ext = -1, i
-        else:
-            if xi <= x[ext]:
-                ext = i
-            elif xi - x[ext] > eps:
-                ext_at[k] = ext
-                seen_at[k] = i
-                k += 1
-                direction, ext = 1, i
-    return ext_at[:k].copy(), seen_at[:k].copy()
-
-
-def reversal_points(x: np.ndarray, eps: float, *, confirmed: bool = False):
-    """Indices of the turning points of ``x`` (N,): a running extreme is confirmed as a
-    reversal once x has moved back from it by more than ``eps`` [m] (hysteresis against
-    noise and quantisation). On a flat top the last sample of the flat is the reversal.
-    Until x has first moved by ``eps`` there is no direction, and the start of the record
-    is not a reversal. This is the rule of the kernel
-    (:func:`cablesvc.models.reversal.track_reversals`, ``reversal_deadband`` in place of
-    ``eps``), run over a whole record.
-
-    ``confirmed``: also return the index of the sample at which each reversal was
-    confirmed (the first sample ``eps`` back from it: when a causal estimator knows of it).
-    """
-    ext_at, seen_at = _turns(np.ascontiguousarray(x, dtype=np.float64), float(eps))
-    return (ext_at, seen_at) if confirmed else ext_at
-
-
-def reversal_amplitude(x: np.ndarray, tol: float = 2e-6) -> np.ndarray:
-    """Elongation amplitude A [m] per sample, causal, from the reversal points of x (N,)
-    or (N, m): half the distance between the last two reversals (002 Sec 3: the amplitude
-    the model's tables are indexed by, estimated as the amplitude model does online), from
-    the sample where the later one is confirmed on and held until the next; 0 before two
-    reversals. ``tol`` [m]: the reversal dead-band of :func:`reversal_points`."""
-    xa = np.asarray(x, dtype=np.float64)
-    cols = xa.reshape(xa.shape[0], int(np.prod(xa.shape[1:])))     # (N, cables), also for N = 0
-    out = np.zeros(cols.shape)
-    samples = np.arange(cols.shape[0])
-    for c in range(cols.shape[1]):
-        xc = np.ascontiguousarray(cols[:, c])
-        ext_at, seen_at = reversal_points(xc, tol, confirmed=True)
-        if ext_at.size < 2:
-            continue
-        amp = 0.5 * np.abs(np.diff(xc[ext_at]))
-        j = np.searchsorted(seen_at[1:], samples, side="right") - 1   # last amplitude known at each sample
-        out[:, c] = np.where(j >= 0, amp[np.maximum(j, 0)], 0.0)
-    return out.reshape(xa.shape)
 
 
 def segment_levels(x: np.ndarray, t: np.ndarray, *, cable: int = 0, rel_tol: float = 0.05,

@@ -38,6 +38,7 @@ from cablesvc.config.robot import RobotGeometry
 from cablesvc.kinematics import ForwardKinematics, InverseKinematics
 from cablesvc.kinematics.ik import PLANAR_WRENCH_ROWS
 from cablesvc.models import AmplitudeDependent, CableModel
+from cablesvc.models.terms import TermStack
 
 try:   # the gufunc behind np.linalg.solve, which takes an output array (np.linalg.solve does not)
     from numpy.linalg._umath_linalg import solve1 as _solve_into
@@ -70,12 +71,16 @@ class Predictor:
     """Fixed-time force predictor for one robot. See the module docstring."""
 
     def __init__(self, geom: RobotGeometry, params: ModelParams, *, fk_iterations: int = 4,
-                 fk_damping: float = 1e-3, slack_threshold: float | np.ndarray | None = None):
+                 fk_damping: float = 1e-3, slack_threshold: float | np.ndarray | None = None,
+                 max_rate_hz: float = 2000.0):
         self.geom = geom
         self.params = params
         m = self.n_cables = geom.n_cables
         self.model: CableModel = params.build(m, lanes=1)
         self._is_amplitude = isinstance(self.model, AmplitudeDependent)
+        # the parameter file's discovered terms (and baseline recalibration), live: None without
+        self.terms: TermStack | None = TermStack.from_params(params.identification, m, lanes=1,
+                                                             max_rate_hz=max_rate_hz)
         self.ik = InverseKinematics(geom, 1)
         self.fk_geometric = ForwardKinematics(geom)
         self.fk_iterations = int(fk_iterations)
@@ -92,6 +97,7 @@ class Predictor:
         # output buffers
         self._x = np.zeros((1, m))
         self._f = np.zeros(m)
+        self._ft = np.zeros(m)                     # baseline + terms, before the slack clamp
         self._slack = np.zeros(m, dtype=bool)
         self._wres = np.zeros(6)
         self._meas = np.full(m, np.nan)
@@ -141,6 +147,9 @@ class Predictor:
         self.state = None
         self._t_prev = None
         self._have_pose = False
+        if self.terms is not None:                   # the terms' history too (clock, delay line, z)
+            self.terms = TermStack.from_params(self.params.identification, self.n_cables, lanes=1,
+                                               max_rate_hz=self.terms.max_rate_hz)
         if not (np.isfinite(self._pos).all() and np.isfinite(self._quat).all()):
             self._home_pose()
 
@@ -158,6 +167,8 @@ class Predictor:
         d["pose.position"] = self._pos.copy()
         d["pose.orientation"] = self._quat.copy()
         d["t_prev"] = np.array([self._t_prev])
+        if self.terms is not None:
+            d.update({f"terms.{k}": v for k, v in self.terms.state_dict().items()})
         return d
 
     def load_state_dict(self, d: dict[str, np.ndarray]) -> None:
@@ -169,6 +180,8 @@ class Predictor:
         self._have_pose = True
         if self._is_amplitude:
             self._amp_src = self.state.memory[1, 0]
+        if self.terms is not None:
+            self.terms.load_state_dict({k[6:]: v for k, v in d.items() if k.startswith("terms.")})
 
     # -- the tick ---------------------------------------------------------------------
     def tick(self, t: float, motor_length, position=None, orientation=None, force=None,
@@ -199,6 +212,10 @@ class Predictor:
         dt = max(t - self._t_prev, 0.0)             # time going backwards is the source's to reject
         self._t_prev = t
         fm = self.model.step(self.state, x, dt, ml)[0]
+        if self.terms is not None:                   # fixed when built, not a data branch
+            np.add(fm, self.terms.step(t, fm[None, :], x, ml, ik.wrap_angle, ik.free_length, temperature)[0],
+                   out=self._ft)
+            fm = self._ft
         f = self._f
         np.maximum(fm, 0.0, out=f)                   # a cable cannot push
         np.less(fm, self.slack_threshold, out=self._slack)
