@@ -2,13 +2,15 @@
 
     cablesvc discover --robot ipanema3 [--params P | --calib calib.mcap] rec.mcap [--report DIR] [--json] [--out params.toml]
     cablesvc discover --boucwen [--data DIR] [--hold] [--json] [--report DIR]
+    cablesvc discover logs/ 'more/*.mcap' [--scheduler tcp://host:8786 | --workers N] [--json] [--report DIR]
 
 ``--calib`` identifies the amplitude baseline from a calibration recording first (the same
 call as ``cablesvc identify --model amplitude``). The first line printed is the verdict.
 Prints where the residual is (cables, time, state), the terms chosen with their evidence,
 and the held-out RMSE per cable before and after; ``--report`` writes JSON, PNG figures,
 the augmented parameter file and an HTML page; ``--json`` prints the JSON instead of text.
-Errors are one line and exit code 1.
+Errors are one line and exit code 1. Several recordings, a directory or a glob run as a
+fleet (:mod:`cablesvc.batch`, docs/cluster.md): one row per recording and a fleet summary.
 """
 
 from __future__ import annotations
@@ -32,6 +34,11 @@ def cmd_discover(args: argparse.Namespace) -> int:
 
     if args.boucwen:
         return _cmd_boucwen(args, fail)
+    specs = [args.recording] if isinstance(args.recording, str) else list(args.recording or [])
+    from cablesvc.batch.cli import fleet_requested
+    if specs and fleet_requested(args, specs):
+        return _cmd_fleet(args, specs, fail)
+    args.recording = specs[0] if len(specs) == 1 else None
     if not args.recording or not args.robot:
         return fail("a recording and --robot are needed (or --boucwen)")
 
@@ -74,6 +81,35 @@ def cmd_discover(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_fleet(args, specs, fail) -> int:
+    """Many recordings (cablesvc.batch): one discovery per recording on Dask."""
+    import os
+
+    from cablesvc.batch.cli import cmd_fleet
+    from cablesvc.config.params import ParamFileError, load_params
+    from cablesvc.config.robot import RobotFileError, load_robot
+    from cablesvc.discover import library
+
+    for flag, given in (("--calib", args.calib), ("--out", args.out)):
+        if given:
+            return fail(f"{flag} is for one recording; with many, use --params (the same baseline for all) "
+                        "or none (each robot's nominal baseline)")
+    try:
+        if args.robot:
+            load_robot(args.robot)
+        if args.params:
+            load_params(args.params)
+        terms = [t.strip() for t in args.terms.split(",") if t.strip()] if args.terms else None
+        if terms:
+            library(terms)
+    except (RobotFileError, ParamFileError, KeyError, OSError, ValueError) as e:
+        return fail(str(e))
+    opts = {"robot": os.path.abspath(args.robot) if args.robot and os.path.exists(args.robot) else args.robot,
+            "params": os.path.abspath(args.params) if args.params else None, "terms": terms,
+            "block": args.block, "min_gain": args.min_gain, "exact_baseline": bool(args.exact_baseline)}
+    return cmd_fleet("discover", args, specs, opts, fail)
+
+
 def _cmd_boucwen(args, fail) -> int:
     from pathlib import Path
     from cablesvc.discover.oscillator_case import boucwen_summary, run_boucwen_discovery
@@ -96,8 +132,10 @@ def _cmd_boucwen(args, fail) -> int:
 def add_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("discover", help="find the physics a model leaves out of a recording",
                               description=__doc__.split("\n\n")[0] + " See docs/discovery.md.")
-    p.add_argument("recording", nargs="?", help="recording with measured forces (.mcap or .csv)")
-    p.add_argument("--robot", default=None, help="robot name or .toml file")
+    p.add_argument("recording", nargs="*", help="recording with measured forces (.mcap or .csv); several paths, "
+                   "a directory or a glob run as a fleet on Dask (docs/cluster.md)")
+    p.add_argument("--robot", default=None, help="robot name or .toml file (fleet: default the one each "
+                   "recording names)")
     p.add_argument("--boucwen", action="store_true",
                    help="run discovery on the Bouc-Wen benchmark oscillator instead (linear start on train.h5)")
     p.add_argument("--data", default=None, help="--boucwen: benchmark data directory (default: "
@@ -117,5 +155,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--block", type=float, default=2.5, help="split block length [s] (default 2.5)")
     p.add_argument("--min-gain", type=float, default=0.05,
                    help="least relative drop of the held-out MSE for a term to count (default 0.05)")
+    from cablesvc.batch.cli import add_fleet_arguments
+    add_fleet_arguments(p)
     p.set_defaults(func=cmd_discover)
     return p

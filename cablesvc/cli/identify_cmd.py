@@ -6,6 +6,8 @@ Shows a progress bar while it works, then a table of the parameters with standar
 ``--out`` writes a parameter file that ``cablesvc run --params`` loads; ``--report`` writes a
 Markdown report with PNG plots. Errors (unreadable recording, unknown model or method,
 cable index out of range, robot/recording mismatch) are one clear line and exit code 1.
+Several recordings, a directory or a glob run as a fleet (:mod:`cablesvc.batch`,
+docs/cluster.md): one row per recording and a fleet summary of the cables that drift.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ examples:
   cablesvc identify --model amplitude --robot ipanema3 hold.mcap --out params.toml --report report/
   cablesvc identify --model boucwen --cables 0,1 --method pso+lm hold.mcap --out bw.toml
   cablesvc run --params params.toml
+  cablesvc identify --model amplitude nightly/ --workers 2 --report fleet/      (a fleet, docs/cluster.md)
 """
 
 
@@ -68,6 +71,13 @@ def cmd_identify(args: argparse.Namespace) -> int:
         cables = _parse_cables(args.cables)
     except ValueError as e:
         return _fail(str(e))
+    specs = [args.recording] if isinstance(args.recording, str) else list(args.recording)
+    from cablesvc.batch.cli import fleet_requested
+    if fleet_requested(args, specs) or args.json:
+        return _cmd_fleet(args, specs, cables)
+    if args.out and len(specs) != 1:
+        return _fail("--out is for one recording")
+    args.recording = specs[0]
     rec_path = Path(args.recording)
     if not rec_path.exists():
         return _fail(f"{rec_path}: recording not found")
@@ -117,6 +127,27 @@ def cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_fleet(args: argparse.Namespace, specs: list[str], cables: list[int] | None) -> int:
+    """Many recordings (cablesvc.batch): one identification per recording on Dask."""
+    import os
+
+    from cablesvc.batch.cli import cmd_fleet
+    from cablesvc.config import RobotFileError, load_robot
+
+    if args.out:
+        return _fail("--out is for one recording; with many, each row of --json / --report holds its parameter "
+                     "file (params_toml)")
+    if args.robot:
+        try:
+            load_robot(args.robot)
+        except RobotFileError as e:
+            return _fail(str(e))
+    opts = {"robot": os.path.abspath(args.robot) if args.robot and os.path.exists(args.robot) else args.robot,
+            "model": args.model, "method": args.method, "cables": cables, "shared": bool(args.shared),
+            "seed": args.seed, "particles": args.particles, "iterations": args.iterations}
+    return cmd_fleet("identify", args, specs, opts, _fail)
+
+
 def _print_table(con: Any, fit: Any, format_value: Any) -> None:
     from rich.table import Table
     if fit.amplitude is not None:
@@ -158,7 +189,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p = subparsers.add_parser("identify", help="identify cable-model parameters from a recording",
                               description=DESCRIPTION, epilog=EPILOG,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("recording", help="recording (.mcap or .csv) with pose, motor lengths and forces")
+    p.add_argument("recording", nargs="+", help="recording (.mcap or .csv) with pose, motor lengths and forces; "
+                   "several paths, a directory or a glob run as a fleet on Dask (docs/cluster.md)")
     p.add_argument("--model", default="amplitude",
                    help="linear | polynomial | amplitude | boucwen | asymmetric (default amplitude)")
     p.add_argument("--robot", help="robot name or .toml path (default: the robot named in the recording)")
@@ -171,6 +203,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--particles", type=int, default=10, help="PSO particles p (000: 10)")
     p.add_argument("--iterations", type=int, default=75, help="PSO iterations q (000: 75)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true",
+                   help="print the fleet JSON (one row per recording and the fleet summary; runs as a fleet)")
+    from cablesvc.batch.cli import add_fleet_arguments
+    add_fleet_arguments(p)
     p.set_defaults(func=cmd_identify)
     return p
 

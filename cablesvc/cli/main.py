@@ -249,6 +249,8 @@ def build_parser() -> argparse.ArgumentParser:
     can_codec.add_parser(bsub)
     from cablesvc.bench import record
     record.add_parser(bsub)
+    from cablesvc.bench import fleet as fleet_bench
+    fleet_bench.add_parser(bsub)
     b.set_defaults(func=lambda a: (b.print_help(), 2)[1])
     return p
 
