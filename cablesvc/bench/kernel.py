@@ -7,7 +7,10 @@ input without a pose (``no_pose``: the path of a bus that carries motor lengths 
 the elasto-static forward kinematics finds the pose every tick), and
 prints p50, p99, p99.9 and max per tick in microseconds, plus traced bytes allocated
 per tick. The normal run is the baseline the adversarial runs are compared with, in
-the same process and run.
+the same process and run. The ``terms`` runs put every library term and the baseline
+recalibration on every cable (:func:`all_terms_params`) on the normal input, on the slack
+input (sag near slack) and without a temperature channel; their ``kernel_p50_ratio`` is
+their p50 over the normal run's p50 in the same run (issue 16).
 
 A second baseline, ``input = "machine"``, says what this machine's timer and scheduler
 allow: a fixed workload of ``calls`` numpy additions on 8-element arrays (the kind of
@@ -36,7 +39,10 @@ from cablesvc.kernel import Predictor
 from cablesvc.kinematics import inverse_kinematics
 from cablesvc.models import ModelParameterError
 
-INPUTS = ("normal", "reversal", "slack", "large", "no_pose")
+INPUTS = ("normal", "reversal", "slack", "large", "no_pose", "terms", "terms_slack", "terms_no_temperature")
+#: the runs with every library term (and the baseline recalibration) on every cable, on
+#: the input named after the prefix (issue 16: ``kernel_p50_ratio`` = terms p50 / normal p50)
+TERM_INPUTS = {"terms": "normal", "terms_slack": "slack", "terms_no_temperature": "normal"}
 #: where the kernel's memory is allocated: tracemalloc sees every thread, and the progress
 #: bar's refresh thread must not count as the kernel's
 _KERNEL_FILES = tuple(tracemalloc.Filter(True, os.path.join(os.path.dirname(mod.__file__), "*"))
@@ -67,6 +73,7 @@ class KernelBenchResult:
     alloc_bytes_per_tick: float
     calls: int | None = None          # machine baseline only: numpy calls per "tick"
     scheduling: str = "default"
+    kernel_p50_ratio: float | None = None   # terms runs: p50 / the normal run's p50 (same run)
 
 
 def _fixed_work(n: int, a: np.ndarray = np.ones(8), b: np.ndarray = np.zeros(8)) -> None:
@@ -124,6 +131,23 @@ def make_inputs(kind: str, L: np.ndarray, x_pre: np.ndarray, ticks: int, rate: f
     return L[None, :] - x
 
 
+def all_terms_params(params: ModelParams, m: int) -> ModelParams:
+    """``params`` with every library term and the baseline recalibration on every cable, at
+    values of the size discovery fits (dead time 50 ms, sag q = 10 N^3/m^3, ...): the
+    heaviest term load a parameter file can ask of the kernel."""
+    from cablesvc.models.terms import LIBRARY, Recalibration, term_class
+    value = {"v_s": 1e-3, "tau": 0.05, "q": 10.0, "beta": 2000.0, "gamma": 500.0, "x_scale": 1e-3,
+             "alpha_mean": 1.0, "T_mean": 20.0, "k": 1e5, "mu": 0.005, "c_v": 50.0}
+    ident = dict(params.identification)
+    ident["discovered_terms"] = list(LIBRARY)
+    for name in [*LIBRARY, Recalibration.name]:
+        t = term_class(name)
+        ident[f"term_{name}"] = {k: [value.get(k, 0.01)] * m for k in t.params + t.hypers + t.ref_names}
+    return ModelParams(model=params.model, params=dict(params.params), options=dict(params.options),
+                       tables=dict(params.tables), robot=params.robot, identification=ident,
+                       source=f"{params.source} + every term")
+
+
 def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_file: str | None = None,
                      ticks: int = 100_000, inputs=INPUTS, rate: float = 1000.0, progress=None,
                      machine_baseline: bool = True, cpu: int | None = None,
@@ -150,22 +174,25 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
     sched = set_scheduling(cpu, realtime)
     results = []
     baseline: KernelBenchResult | None = None
+    normal_p50: float | None = None
     for kind in inputs:
-        ml_all = make_inputs(kind, L, x_pre, ticks, rate)
-        pred = Predictor(geom, params)
+        ml_all = make_inputs(TERM_INPUTS.get(kind, kind), L, x_pre, ticks, rate)
+        pred = Predictor(geom, all_terms_params(params, geom.n_cables) if kind in TERM_INPUTS else params)
         p_in, q_in = (None, None) if kind == "no_pose" else (pos, quat)   # no_pose: the FK path
+        # the temperature channel: present (20 deg C) except where the run is about its absence
+        temp = None if kind == "terms_no_temperature" else 20.0
         warm = min(1000, ticks // 10)
         for k in range(warm):
-            pred.tick(k / rate, ml_all[k], p_in, q_in)
+            pred.tick(k / rate, ml_all[k], p_in, q_in, None, temp)
         # allocation per tick, traced, over a separate stretch
         n_alloc = min(10_000, ticks)
         n_pre = min(ALLOC_WARMUP, ticks)      # sized to the run: short runs have fewer inputs
         tracemalloc.start()
         for k in range(n_pre):
-            pred.tick((warm + k) / rate, ml_all[k], p_in, q_in)
+            pred.tick((warm + k) / rate, ml_all[k], p_in, q_in, None, temp)
         before = tracemalloc.take_snapshot().filter_traces(_KERNEL_FILES)
         for k in range(n_alloc):
-            pred.tick((warm + n_pre + k) / rate, ml_all[k % ticks], p_in, q_in)
+            pred.tick((warm + n_pre + k) / rate, ml_all[k % ticks], p_in, q_in, None, temp)
         after = tracemalloc.take_snapshot().filter_traces(_KERNEL_FILES)
         tracemalloc.stop()
         grown = sum(st.size_diff for st in after.compare_to(before, "filename"))
@@ -181,7 +208,7 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
             probe = np.empty(2000)
             for k in range(probe.size):
                 a = clock()
-                pred.tick(t0 + k / rate, ml_all[k % ticks], p_in, q_in)
+                pred.tick(t0 + k / rate, ml_all[k % ticks], p_in, q_in, None, temp)
                 probe[k] = clock() - a
             calls = calibrate_calls(float(np.median(probe)) / 1e3)
             base_d = np.empty(ticks - ticks % block, dtype=np.int64)
@@ -193,7 +220,7 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
             for k in range(ticks):
                 ml = ml_all[k]
                 a = clock()
-                pred.tick(t0 + k / rate, ml, p_in, q_in)
+                pred.tick(t0 + k / rate, ml, p_in, q_in, None, temp)
                 durations[k] = clock() - a
                 if paired and k % block == block - 1:   # a block of baseline "ticks" after each block
                     for j in range(k - block + 1, k + 1):
@@ -213,11 +240,15 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
                 p999_us=float(np.percentile(bu, 99.9)), max_us=float(bu.max()), alloc_bytes_per_tick=0.0,
                 calls=calls, scheduling=sched)
         us = durations / 1e3
+        p50 = float(np.percentile(us, 50))
+        if kind == "normal":
+            normal_p50 = p50
         results.append(KernelBenchResult(
             robot=robot, model=params.model, input=kind, ticks=ticks,
-            p50_us=float(np.percentile(us, 50)), p99_us=float(np.percentile(us, 99)),
+            p50_us=p50, p99_us=float(np.percentile(us, 99)),
             p999_us=float(np.percentile(us, 99.9)), max_us=float(us.max()),
-            alloc_bytes_per_tick=float(alloc_per_tick), scheduling=sched))
+            alloc_bytes_per_tick=float(alloc_per_tick), scheduling=sched,
+            kernel_p50_ratio=(p50 / normal_p50 if kind in TERM_INPUTS and normal_p50 else None)))
     if baseline is not None:
         results.append(baseline)
     return results
@@ -229,6 +260,8 @@ def as_dicts(results: list[KernelBenchResult]) -> list[dict]:
     out = []
     for r in results:
         d = asdict(r)
+        if r.kernel_p50_ratio is None:
+            del d["kernel_p50_ratio"]
         if r.calls is None:
             del d["calls"]
             if r.scheduling == "default":
