@@ -10,7 +10,7 @@ twice: serially in this process (:func:`cablesvc.batch.run_serial`), then on a n
 Printed: ``recordings``, ``workers``, ``serial_seconds``, ``cluster_seconds`` (the whole
 cluster run *including* the LocalCluster start and the workers' first imports: what a
 user waits for), ``cluster_start_seconds`` (the start alone), ``speedup`` = serial /
-cluster, ``identical`` (every row of the cluster run equals the serial row, all numbers,
+cluster (``speedup_excluding_start``: the start left out), ``identical`` (every row of the cluster run equals the serial row, all numbers,
 only the timing fields left out), ``cpus`` and the 1-minute load average before and after.
 ``serial_cpu_seconds`` / ``cluster_cpu_seconds`` sum the jobs' CPU time in their processes
 and ``cluster_cores_used`` = cluster CPU / cluster wall time: on a machine whose cores
@@ -92,6 +92,7 @@ def run_fleet_bench(recordings: int = 8, workers: int = 2, seconds: float = 60.0
             "cluster_start_seconds": round(res.engine["start_seconds"], 3),
             "cluster_includes_start": True,
             "speedup": round(t_serial / t_cluster, 3),
+            "speedup_excluding_start": round(t_serial / (t_cluster - res.engine["start_seconds"]), 3),
             "identical": comparable(serial) == comparable(res.rows),
             "serial_cpu_seconds": round(sum(r["cpu_seconds"] or 0.0 for r in serial), 3),
             "cluster_cpu_seconds": round(sum(r["cpu_seconds"] or 0.0 for r in res.rows), 3),
