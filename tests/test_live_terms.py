@@ -185,3 +185,28 @@ def test_bench_kernel_terms_rows_report_the_ratio():
     assert "kernel_p50_ratio" not in by["normal"]
     for k in ("terms", "terms_no_temperature"):
         assert by[k]["kernel_p50_ratio"] == pytest.approx(by[k]["p50_us"] / by["normal"]["p50_us"])
+
+
+def test_creep_clock_starts_at_the_files_origin():
+    tab = {"creep": {"a": [0.0] * 8, "b": [1e-5] * 8, "tau": [10.0] * 8, "k": [1e5] * 8}}
+    stack = TermStack.from_params({"discovered_terms": ["creep"], "term_creep": tab["creep"],
+                                   "terms_clock_origin": 100.0}, 8)
+    z = np.zeros((1, 8))
+    out = stack.step(110.0, z + 50.0, z, z, z, z + 3.0, None)
+    np.testing.assert_allclose(out, -1e5 * 1e-5 * 10.0)        # -k b (t - origin)
+
+
+def test_discovery_since_runs_live_from_the_recordings_start(robot):
+    """``discover(..., since=T)``: the baseline runs over the whole recording and the terms
+    are fitted on the ticks from T on; the kernel that ran from the start with the written
+    file gives, from T on, the forces predict() gives."""
+    rec = _recording("viscous:800@3", seed=4, duration=30.0)
+    d = discover(rec, robot, exact_baseline=True, since=10.0)
+    k0 = int(np.searchsorted(rec.t, rec.t[0] + 10.0 - 1e-9))
+    assert d.signals.n == rec.t.size - k0 and "viscous" in d.named
+    assert d.augmented_params().identification["terms_clock_origin"] == float(rec.t[k0])
+    live, _ = _kernel_forces(rec, robot, d.augmented_params())
+    base, _ = _kernel_forces(rec, robot, d.baseline)
+    off = d.predict()
+    terms_live, terms_off = (live - base)[k0:], off - d.signals.f0
+    assert np.max(np.abs(terms_live - terms_off) / np.maximum(np.abs(off), 1.0)) < 1e-9

@@ -276,6 +276,8 @@ class Discovery:
             tables.setdefault(name, {})
         for name, table in tables.items():
             ident[f"term_{name}"] = table
+        if "t_origin" in self.options:     # the creep clock's zero: this recording's start
+            ident["terms_clock_origin"] = float(self.options["t_origin"])
         ident["discovery_rmse_before"] = [float(v) for v in self.rmse_before]
         ident["discovery_rmse_after"] = [float(v) for v in self.rmse_after]
         return ModelParams(model=p.model, params=dict(p.params), options=dict(p.options), tables=dict(p.tables),
@@ -330,10 +332,31 @@ def _corr(a: np.ndarray, b: np.ndarray, centred: bool = True) -> float:
     return float(a @ b / d) if d > 0 else 0.0
 
 
+def _since(rec: Any, s: Signals, since: float) -> tuple[Any, Signals]:
+    """The recording and its signals from ``since`` s after the recording's start on; the
+    baseline and the amplitude were computed over the whole recording, so their hysteresis
+    state at the cut is the one the live kernel has there."""
+    import copy as _copy
+    from cablesvc.recording import Recording
+
+    k0 = int(np.searchsorted(s.t, since - 1e-9))
+    if s.n - k0 < 200:
+        raise DiscoveryError(f"--since {since:g} s leaves {s.n - k0} ticks of the recording; discovery needs >= 200")
+    cut = (lambda a: None if a is None else np.asarray(a)[k0:])
+    r2 = Recording(robot=rec.robot, metadata=dict(rec.metadata), t=np.asarray(rec.t)[k0:],
+                   seq=np.asarray(rec.seq)[k0:], motor_length=cut(rec.motor_length), position=cut(rec.position),
+                   orientation=cut(rec.orientation), force=cut(rec.force), temperature=cut(rec.temperature))
+    s2 = _copy.copy(s)
+    for k in ("t", "y", "f0", "x", "v", "v_slide", "wrap", "free_length", "amplitude", "train"):
+        setattr(s2, k, getattr(s, k)[k0:])
+    s2.temperature = cut(s.temperature)
+    return r2, s2
+
+
 def discover(recording: Any, robot: Union[Robot, str, "os.PathLike[str]"],
              params: Union[None, str, "os.PathLike[str]", ModelParams] = None, *,
              terms: Optional[list[Term]] = None, selector: Any = None, block: float = 2.5,
-             exact_baseline: bool = False) -> Discovery:
+             exact_baseline: bool = False, since: Optional[float] = None) -> Discovery:
     """Run discovery on ``recording`` (a :class:`~cablesvc.recording.Recording` or a path)
     of ``robot``; ``params`` the baseline (None: nominal); ``terms`` the library (default
     :func:`~cablesvc.models.terms.library`); ``selector`` (default
@@ -346,12 +369,19 @@ def discover(recording: Any, robot: Union[Robot, str, "os.PathLike[str]"],
     (:mod:`cablesvc.discover.equilibrium`), every finding needs a block-level p-value
     (:mod:`cablesvc.discover.evidence`) and a residual nothing explains is reported as
     such. True when the baseline is the exact model of the recording (a simulator's own
-    truth model): every residual is then physics and the whole library competes."""
+    truth model): every residual is then physics and the whole library competes.
+
+    ``since`` [s after the recording's start]: analyse only the ticks from then on (the
+    data since an alarm, an effect that set in mid-recording); the baseline still runs over
+    the whole recording, so its hysteresis state there is the one the live kernel has, and
+    the creep clock of the parameter file starts there."""
     from cablesvc.recording import read_recording
     rob = _robot(robot)
     rec = recording if not isinstance(recording, (str, os.PathLike)) else read_recording(recording)
     base = baseline_params(rob, params)
     s = build_signals(rec, rob, base)
+    if since is not None and since > 0:
+        rec, s = _since(rec, s, float(since))
     train, valid, test = split_blocks(s.t, block)
     s.train = train
     terms = library() if terms is None else terms
@@ -394,7 +424,8 @@ def discover(recording: Any, robot: Union[Robot, str, "os.PathLike[str]"],
     return Discovery(robot=rob.name, baseline=base, signals=s, residual=r,
                      masks={"train": train, "valid": valid, "test": test}, location=loc, selection=sel,
                      final=final, full=full, findings=findings, rmse_before=rmse_b, rmse_after=rmse_a,
-                     noise=np.array([d["noise"] for d in loc["cables"]]), options={"block": block, "mode": "exact"})
+                     noise=np.array([d["noise"] for d in loc["cables"]]),
+                     options={"block": block, "mode": "exact", "t_origin": float(rec.t[0])})
 
 
 #: family-wise error rate of the block-level tests (Holm over all tries)
@@ -584,5 +615,6 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     return Discovery(robot=rob.name, baseline=base, signals=s, residual=r,
                      masks={"train": train, "valid": valid, "test": test}, location=loc, selection=sel,
                      final=final, full=full, findings=findings, rmse_before=rmse_b, rmse_after=rmse_a,
-                     noise=noise, options={"block": block, "mode": "identified", "alpha": ALPHA, **sel_info},
+                     noise=noise, options={"block": block, "mode": "identified", "alpha": ALPHA,
+                                           "t_origin": float(rec.t[0]), **sel_info},
                      recalibration=recal, unexplained=unexplained, equilibrium=eq)

@@ -1114,13 +1114,14 @@ class TermStack:
 
     It keeps the state the terms need: the previous x and motor length (dx/dt and the
     sliding speed over the pulley by backward differences, 0 on the first tick), the
-    amplitude tracker, the creep clock (time since the first tick), the dead-time delay line
+    amplitude tracker, the creep clock (time since the recording's start that the parameter
+    file gives as ``terms_clock_origin``, else since the first tick), the dead-time delay line
     (f0, x, dx/dt and A of the last :data:`DELAY_WINDOW_S` s at up to ``max_rate_hz``; the
     other terms of a cable with a dead time see them delayed by its tau, as offline) and
     each term's own state (Bouc-Wen z). All of it is in :meth:`state_dict`."""
 
     def __init__(self, terms: list[Term], tables: dict[str, dict[str, Any]], m: int, lanes: int = 1,
-                 max_rate_hz: float = 2000.0):
+                 max_rate_hz: float = 2000.0, clock_origin: Optional[float] = None):
         self.m, self.lanes = m, lanes
         self.max_rate_hz = float(max_rate_hz)
         self.names = [t.name for t in terms]
@@ -1134,6 +1135,9 @@ class TermStack:
         self.ml_prev = np.zeros(shp)
         self.temp = np.full((lanes, 1), np.nan)
         self.clock = np.zeros((lanes, 1))
+        #: the creep clock's zero [s, in the ticks' time base]: the recording's start when the
+        #: parameter file gives it (``terms_clock_origin``), else the first tick
+        self.origin = None if clock_origin is None else float(clock_origin)
         self.t0: Optional[float] = None
         self.t_prev = 0.0
         self.rev = _Reversals(lanes, m, AMPLITUDE_TOL)
@@ -1161,14 +1165,15 @@ class TermStack:
             return None
         terms = [term_class(n) for n in names]
         tables = {n: dict(identification.get(f"term_{n}", {})) for n in names}
-        return cls(terms, tables, m, lanes, max_rate_hz)
+        origin = identification.get("terms_clock_origin")
+        return cls(terms, tables, m, lanes, max_rate_hz, None if origin is None else float(origin))
 
     def step(self, t: float, f0: np.ndarray, x: np.ndarray, motor_length: np.ndarray, wrap: np.ndarray,
              free_length: np.ndarray, temperature: Optional[float]) -> np.ndarray:
         """The terms' force (lanes, m) [N] at this tick (a buffer the next tick overwrites)."""
         first = self.t0 is None
         if first:
-            self.t0 = t
+            self.t0 = t if self.origin is None else self.origin
             self.t_prev = t
             np.copyto(self.x_prev, x)
             np.copyto(self.ml_prev, motor_length)
