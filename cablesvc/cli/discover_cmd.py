@@ -59,7 +59,7 @@ def cmd_discover(args: argparse.Namespace) -> int:
         terms = library(args.terms.split(",")) if args.terms else None
         sel = ForwardSelector(SelectOptions(min_gain=args.min_gain))
         d = discover(rec, robot, params, terms=terms, selector=sel, block=args.block,
-                     exact_baseline=args.exact_baseline)
+                     exact_baseline=args.exact_baseline, since=args.since)
     except (RobotFileError, RecordingError, ParamFileError, DiscoveryError, KeyError, OSError, ValueError) as e:
         return fail(str(e))
     files = {}
@@ -153,6 +153,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--terms", default=None, help="comma-separated subset of the term library")
     p.add_argument("--block", type=float, default=2.5, help="split block length [s] (default 2.5)")
+    p.add_argument("--since", type=float, default=None, metavar="SECONDS",
+                   help="analyse only the ticks from SECONDS after the recording's start on (e.g. since an "
+                        "alarm); the baseline still runs from the start, so its hysteresis state there is the "
+                        "live kernel's, and the written file's creep clock starts there")
     p.add_argument("--min-gain", type=float, default=0.05,
                    help="least relative drop of the held-out MSE for a term to count (default 0.05)")
     from cablesvc.batch.cli import add_fleet_arguments
