@@ -28,7 +28,9 @@ The Jacobian of every least-squares step is a forward difference computed in one
 call (lane 0 the current parameters, lane j+1 parameter j perturbed, all cables at once),
 so the Jacobian is block diagonal across cables.
 
-Per model (what is identified, what is fixed, and why):
+Per model (what is identified, what is fixed, and why; each model class owns its search
+space, :meth:`~cablesvc.models.base.CableModel.search_space`, and what identification
+writes for the cables it did not fit, :meth:`~cablesvc.models.base.CableModel.file_sections`):
 
 * ``linear`` (002 eq 3): ``ea`` [N]; ``slack_width`` fixed at its default, ``l_ref`` unused
   (the motor length is passed as l0, as the kernel does).
@@ -63,11 +65,14 @@ from cablesvc.identify.pso import normalized_mse, pso, pso_lockstep
 from cablesvc.identify.result import IdentifyResult
 from cablesvc.kinematics import inverse_kinematics
 from cablesvc.models import MODELS
+from cablesvc.models.amplitude import TABLE_COLUMNS
+from cablesvc.models.space import FitStats, Space
 
 __all__ = ["CableData", "CableFit", "IdentifyError", "cable_data", "identify_cable", "MODEL_CHOICES",
            "METHODS", "elongation_from_recording"]
 
-MODEL_CHOICES = ("amplitude", "linear", "polynomial", "boucwen", "asymmetric")
+#: the models identification fits (every one in the registry, each with its search space)
+MODEL_CHOICES = tuple(MODELS)
 METHODS = ("pso+lm", "lm", "sqp")
 
 
@@ -155,157 +160,12 @@ def cable_data(recording: Any, robot: Robot | str | os.PathLike, cables: Sequenc
 # --------------------------------------------------------------------------------------
 
 
-@dataclass
-class Space:
-    """Identified parameters of one model for K cables.
-
-    ``names``: model parameter names (LM works on them, in model units); ``search_lb/ub``
-    (K, n) bounds of the PSO search space and ``to_model(S)`` maps search values (..., K, n)
-    to model values (..., K, n); ``lb/ub`` (K, n) model-space bounds for least squares;
-    ``fixed``: other model parameters, name -> (K,); ``options``: build options;
-    ``x0``: (K, n) data-driven start in model space; ``notes``: what was fixed and why."""
-
-    model: str
-    names: list[str]
-    units: list[str]
-    search_lb: np.ndarray
-    search_ub: np.ndarray
-    to_model: Callable[[np.ndarray], np.ndarray]
-    to_search: Callable[[np.ndarray], np.ndarray]
-    lb: np.ndarray
-    ub: np.ndarray
-    fixed: dict[str, np.ndarray]
-    x0: np.ndarray
-    options: dict[str, Any] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-
-    def kwargs(self, V: np.ndarray) -> dict[str, np.ndarray]:
-        """Model constructor parameters from model values V (L, K, n)."""
-        L = V.shape[0]
-        out = {k: np.ascontiguousarray(V[:, :, j]) for j, k in enumerate(self.names)}
-        for k, v in self.fixed.items():
-            out[k] = np.broadcast_to(np.asarray(v, float), (L, V.shape[1])).copy()
-        return out
-
-
-def _linear_guess(x: np.ndarray, f: np.ndarray) -> tuple[float, float]:
-    """F ~ k (x - x0): least-squares slope k [N/m] (>= a tiny positive) and x0 [m]."""
-    A = np.column_stack([x, np.ones_like(x)])
-    (k, b), *_ = np.linalg.lstsq(A, f, rcond=None)
-    k = float(abs(k)) if k != 0 else 1.0
-    return k, float(-b / k)
-
-
-def _hysteresis_to_model(S):
-    """Search -> model coordinates of the Bouc-Wen-type spaces: columns 1, 2 searched as
-    log10, column 3 as a ratio to column 2 (gamma / beta: the loop shape)."""
-    V = np.array(S, dtype=float, copy=True)
-    V[..., 1] = 10.0 ** S[..., 1]
-    V[..., 2] = 10.0 ** S[..., 2]
-    V[..., 3] = S[..., 3] * V[..., 2]
-    return V
-
-
-def _hysteresis_to_search(V):
-    """Inverse of :func:`_hysteresis_to_model`."""
-    S = np.array(V, dtype=float, copy=True)
-    S[..., 1] = np.log10(np.maximum(V[..., 1], 1e-300))
-    S[..., 2] = np.log10(np.maximum(V[..., 2], 1e-300))
-    S[..., 3] = V[..., 3] / np.where(V[..., 2] != 0, V[..., 2], 1.0)
-    return S
-
-
 def _space(model: str, data: CableData, degree: int = 3) -> Space:
-    K = len(data.cables)
-    x, f, l0 = data.x, data.force, data.l0
-    kk = np.empty(K)
-    x0z = np.empty(K)
-    for c in range(K):
-        kk[c], x0z[c] = _linear_guess(x[:, c], f[:, c])
-    xm = x.mean(axis=0)
-    xs = np.maximum(x.std(axis=0), 1e-7)
-    fs = np.maximum(f.std(axis=0), 1e-3)
-    fr = np.maximum(np.ptp(f, axis=0), 1e-3)
-    ident = lambda S: S
-    col = lambda v: np.asarray(v, float)[:, None]
-    if model == "linear":
-        ea0 = kk * np.mean(l0, axis=0)
-        lo, hi = np.log10(ea0 / 5), np.log10(ea0 * 5)
-        return Space(model, ["ea"], ["N"], col(lo), col(hi), lambda S: 10.0 ** S, lambda V: np.log10(V),
-                     col(ea0 * 1e-3), col(ea0 * 1e3), {}, col(ea0),
-                     notes=["linear: ea identified; slack_width fixed at its default; l0 = motor length"])
-    if model == "polynomial":
-        names = [f"a{i}" for i in range(degree + 1)] + ["x_center"]
-        X = np.maximum(np.abs(x - x0z).max(axis=0), 1e-6)
-        fmax = np.maximum(np.abs(f).max(axis=0), 1.0)
-        slb = np.empty((K, degree + 2))
-        sub = np.empty((K, degree + 2))
-        for i in range(degree + 1):
-            s = 2.0 * fmax / X ** i
-            slb[:, i], sub[:, i] = -s, s
-        slb[:, 0], sub[:, 0] = 0.0, 0.5 * fr                     # half-width of the friction band
-        slb[:, 1], sub[:, 1] = 0.0, 3.0 * kk                     # linear stiffness
-        d = np.maximum(4 * xs, 0.5 * np.abs(xm - x0z))
-        slb[:, -1], sub[:, -1] = x0z - d, x0z + d
-        start = np.zeros((K, degree + 2))
-        start[:, 1] = kk
-        start[:, -1] = x0z
-        return Space(model, names, ["N"] + [f"N/m^{i}" for i in range(1, degree + 1)] + ["m"], slb, sub, ident,
-                     ident, np.full_like(slb, -np.inf), np.full_like(sub, np.inf), {}, start,
-                     options={"degree": int(degree)},
-                     notes=[f"polynomial (degree {degree}): a0..a{degree} and x_center identified"])
-    if model == "boucwen":
-        # search: k_e, log10 k_d, log10 beta, g = gamma/beta, n, f0
-        names = ["k_e", "k_d", "beta", "gamma", "n", "f0"]
-        bscale = np.log10(kk / fs)                    # beta ~ k_d / z^n with z ~ force std, n ~ 1
-        slb = np.column_stack([np.zeros(K), np.log10(kk * 1e-2), bscale - 3, np.full(K, -0.95), np.full(K, 1.0),
-                               f.mean(axis=0) - fr])
-        sub = np.column_stack([3 * kk, np.log10(kk * 10), bscale + 5, np.ones(K), np.full(K, 3.0),
-                               f.mean(axis=0) + fr])
-
-        to_model, to_search = _hysteresis_to_model, _hysteresis_to_search
-        lb = np.column_stack([np.zeros(K), np.zeros(K), np.zeros(K), np.full(K, -np.inf), np.full(K, 0.3),
-                              np.full(K, -np.inf)])
-        ub = np.column_stack([np.full(K, np.inf)] * 4 + [np.full(K, 6.0), np.full(K, np.inf)])
-        start = to_model(0.5 * (slb + sub))
-        return Space(model, names, ["N/m", "N/m", "1/(m N^(n-1))", "1/(m N^(n-1))", "-", "N"], slb, sub, to_model,
-                     to_search, lb, ub, {"x_center": xm, "k3": np.zeros(K)}, start,
-                     notes=["boucwen: x_center fixed to the mean elongation (f0 and x_center are redundant "
-                            "when k3 = 0) and k3 = 0 (as in 000 Sec 6); identified in the form of 000 eq 1, "
-                            "whose beta and gamma are the benchmark's beta*gamma and beta*delta"])
-    if model == "asymmetric":
-        names = ["c", "alpha", "beta", "gamma", "n", "k1", "k2", "k3", "x_center"]
-        X = np.maximum(np.abs(x - x0z).max(axis=0), 1e-6)
-        bscale = np.log10(kk / fs)
-        d = np.maximum(4 * xs, 0.5 * np.abs(xm - x0z))
-        slb = np.column_stack([-1 / X ** 2, np.log10(kk * 1e-2), bscale - 3, np.full(K, -0.95), np.full(K, 1.0),
-                               np.zeros(K), -kk / X, -kk / X ** 2, x0z - d])
-        sub = np.column_stack([1 / X ** 2, np.log10(kk * 10), bscale + 5, np.ones(K), np.full(K, 3.0),
-                               3 * kk, kk / X, kk / X ** 2, x0z + d])
-
-        to_model, to_search = _hysteresis_to_model, _hysteresis_to_search
-        lb = np.column_stack([np.full(K, -np.inf), np.zeros(K), np.zeros(K), np.full(K, -np.inf), np.full(K, 0.3)]
-                             + [np.full(K, -np.inf)] * 4)
-        ub = np.column_stack([np.full(K, np.inf)] * 4 + [np.full(K, 6.0)] + [np.full(K, np.inf)] * 4)
-        start = to_model(0.5 * (slb + sub))
-        return Space(model, names, ["1/m^2", "N/m", "1/(m N^(n-1))", "1/(m N^(n-1))", "-", "N/m", "N/m^2", "N/m^3",
-                                    "m"], slb, sub, to_model, to_search, lb, ub, {"b": np.ones(K)}, start,
-                     notes=["asymmetric: b = 1 fixed (z -> s z with b, c -> b/s, c/s, alpha -> s alpha and "
-                            "beta, gamma -> s^(1-n) beta, gamma leaves the force unchanged)"])
-    if model == "amplitude":
-        names = ["K0", "K1", "K2", "K3", "S_a", "alpha"]
-        X = np.maximum(np.abs(x - xm).max(axis=0), 1e-6)
-        fm = f.mean(axis=0)
-        slb = np.column_stack([fm - fr, np.zeros(K), -kk / X, -kk / X ** 2, np.zeros(K), np.zeros(K)])
-        sub = np.column_stack([fm + fr, 3 * kk, kk / X, kk / X ** 2, kk * X ** 2 * 2, np.full(K, 2.0)])
-        lb = np.column_stack([np.full(K, -np.inf)] * 4 + [np.zeros(K), np.zeros(K)])
-        ub = np.column_stack([np.full(K, np.inf)] * 5 + [np.full(K, 3.0)])
-        start = np.column_stack([fm, kk, np.zeros(K), np.zeros(K), 0.1 * np.pi * kk * X ** 2, np.full(K, 0.3)])
-        return Space(model, names, ["N", "N/m", "N/m^2", "N/m^3", "J", "-"], slb, sub, ident, ident, lb, ub,
-                     {"x_center": xm}, start,
-                     notes=["amplitude (no amplitude levels in the recording): one constant table row; "
-                            "x_center fixed to the mean elongation"])
-    raise IdentifyError(f"unknown model {model!r}; known: {', '.join(MODEL_CHOICES)}")
+    """The model class's search space (:meth:`~cablesvc.models.base.CableModel.search_space`)
+    scaled by the fitted cables' data."""
+    if model not in MODELS:
+        raise IdentifyError(f"unknown model {model!r}; known: {', '.join(MODEL_CHOICES)}")
+    return MODELS[model].search_space(FitStats.of(data.x, data.force, data.l0), degree=degree)
 
 
 # --------------------------------------------------------------------------------------
@@ -323,14 +183,8 @@ class _Simulator:
         self.cls = MODELS[space.model]
 
     def build(self, V: np.ndarray):
-        kw = self.space.kwargs(V)
-        L, K = V.shape[0], V.shape[1]
-        if self.space.model == "amplitude":
-            tab = {k: kw.pop(k)[..., None] for k in ("K0", "K1", "K2", "K3", "S_a", "alpha")}
-            span = np.ptp(self.data.x, axis=0)
-            kw.setdefault("amplitude_init", np.broadcast_to(np.maximum(0.5 * span, 1e-7), (L, K)))
-            return self.cls((L, K), amplitudes=[1e-12], **tab, **kw)
-        return self.cls((L, K), **kw, **self.space.options)
+        return self.cls.build_lanes((V.shape[0], V.shape[1]), self.space.kwargs(V), self.space.options,
+                                    self.data.x)
 
     def run(self, V: np.ndarray) -> np.ndarray:
         """Force (T, L, K) [N] for model values V (L, K, n)."""
@@ -510,46 +364,10 @@ def _params_file(model: str, rob: Robot, data: CableData, names: list[str], V: n
              "amplitude_range": [float(0.5 * np.min(np.ptp(data.x, axis=0))), float(0.5 * np.max(np.ptp(data.x, axis=0)))]}
     for j, nm in enumerate(names):
         ident[f"stderr_{nm}"] = [float(v) if np.isfinite(v) else -1.0 for v in se[:, j]]
-    if model == "amplitude":
-        nom = default_params(geom.ea, home, "amplitude")
-        amps = np.asarray(nom.tables["amplitudes"], float)
-        tables = {"amplitudes": amps.tolist()}
-        for k in ("K0", "K1", "K2", "K3", "S_a", "alpha"):
-            rows = np.broadcast_to(np.asarray(nom.tables[k], float), (m, amps.size)).copy()
-            j = names.index(k)
-            rows[fitted] = V[:, j][:, None]
-            tables[k] = rows.tolist()
-        xc = np.zeros(m)
-        xc[fitted] = space.fixed["x_center"]
-        return ModelParams(model="amplitude", params={"x_center": xc.tolist()}, tables=tables, robot=rob.name,
-                           identification=ident)
-    if model == "linear":
-        ea = np.asarray(geom.ea, float).copy()
-        ea[fitted] = V[:, 0]
-        return ModelParams(model="linear", params={"ea": ea.tolist()}, robot=rob.name, identification=ident)
-    # polynomial / boucwen / asymmetric: nominal for other cables = linear-ish defaults
-    k_nom = np.asarray(geom.ea, float) / home
-    values: dict[str, np.ndarray] = {}
-    cls = MODELS[model]
-    if model == "polynomial":
-        all_names = names
-        for nm in all_names:
-            values[nm] = np.zeros(m)
-        values["a1"] = k_nom.copy()
-    else:
-        for nm in cls.param_names:
-            values[nm] = np.full(m, float(cls.defaults.get(nm, 0.0)))
-        if model == "boucwen":
-            values.update(k_e=k_nom.copy(), k_d=np.zeros(m), beta=np.zeros(m), gamma=np.zeros(m), n=np.ones(m))
-        else:
-            values.update(k1=k_nom.copy(), alpha=np.zeros(m), beta=np.zeros(m), gamma=np.zeros(m), n=np.ones(m),
-                          b=np.zeros(m))
-    for k, v in space.fixed.items():
-        values[k][fitted] = v
-    for j, nm in enumerate(names):
-        values[nm][fitted] = V[:, j]
-    return ModelParams(model=model, params={k: v.tolist() for k, v in values.items()}, options=dict(space.options),
-                       robot=rob.name, identification=ident)
+    sections = MODELS[model].file_sections(m, np.asarray(geom.ea, float), home, fitted, names, V, space.fixed,
+                                           space.options)
+    return ModelParams(model=model, params=sections["params"], options=sections["options"],
+                       tables=sections["tables"], robot=rob.name, identification=ident)
 
 
 # --------------------------------------------------------------------------------------
@@ -586,7 +404,7 @@ def identify_cable(recording: Any, robot: Robot | str | os.PathLike, model: str 
     data = cable_data(recording, rob, cables)
     say = progress if callable(progress) else (lambda *a: None)
 
-    if model == "amplitude":
+    if MODELS[model].fit_by_levels:
         from cablesvc.identify.amplitude_fit import fit_amplitude_model, segment_levels
         levels_found = all(len(segment_levels(data.x[:, c], data.t)) > 0 for c in range(len(data.cables)))
         if levels_found and not shared:
@@ -664,7 +482,7 @@ def _sqp(coarse: _Simulator, fine: _Simulator, space: Space, shared: bool, seed:
         say(gi, len(groups), f"multi-start SQP, cable group {gi + 1}/{len(groups)}")
         sub = CableData(data.t, data.x[:, grp], data.l0[:, grp], data.force[:, grp], [data.cables[c] for c in grp],
                         data.robot, data.n_cables)
-        sub_space = _subspace(space, grp)
+        sub_space = space.subspace(grp)
         sim = _Simulator(sub_space, sub)
         Fm = sub.force
         scale = float(np.sum((Fm - Fm.mean(axis=0)) ** 2))
@@ -699,12 +517,6 @@ def _sqp(coarse: _Simulator, fine: _Simulator, space: Space, shared: bool, seed:
     return out
 
 
-def _subspace(space: Space, idx: list[int]) -> Space:
-    return Space(space.model, space.names, space.units, space.search_lb[idx], space.search_ub[idx], space.to_model,
-                 space.to_search, space.lb[idx], space.ub[idx], {k: np.asarray(v)[idx] for k, v in space.fixed.items()},
-                 space.x0[idx], space.options, space.notes)
-
-
 def amplitude_params(af: Any, rob: Robot, data: CableData, seed: Any) -> ModelParams:
     """ModelParams of an amplitude-model fit for every robot cable (cables not fitted keep
     nominal values resampled on the fitted amplitude grid)."""
@@ -715,7 +527,7 @@ def amplitude_params(af: Any, rob: Robot, data: CableData, seed: Any) -> ModelPa
     grid = af.table_amplitudes
     namps = np.asarray(nom.tables["amplitudes"], float)
     tables: dict[str, Any] = {"amplitudes": grid.tolist()}
-    for k in ("K0", "K1", "K2", "K3", "S_a", "alpha"):
+    for k in TABLE_COLUMNS:
         nomk = np.broadcast_to(np.asarray(nom.tables[k], float), (m, namps.size))
         rows = np.stack([np.interp(grid, namps, nomk[c]) for c in range(m)])
         rows[data.cables] = af.tables[k]

@@ -7,8 +7,9 @@ from cablesvc.models.boucwen import BoucWen, bouc_wen_bound, from_benchmark, to_
 from cablesvc.models.linear import LinearElastic
 from cablesvc.models.polynomial import PolynomialHysteresis
 
-#: model name -> class, as used in parameter files and on the command line
-MODELS = {cls.name: cls for cls in (LinearElastic, PolynomialHysteresis, AmplitudeDependent, BoucWen, AsymmetricBoucWen)}
+#: model name -> class, as used in parameter files and on the command line (the default,
+#: amplitude, first: identification lists them in this order)
+MODELS = {cls.name: cls for cls in (AmplitudeDependent, LinearElastic, PolynomialHysteresis, BoucWen, AsymmetricBoucWen)}
 
 __all__ = [
     "MODELS", "CableModel", "ModelState", "ModelParameterError", "simulate", "loop_area",

@@ -7,10 +7,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import gammaln
 
-from cablesvc.models.base import CableModel, ModelParameterError, ModelState
+from cablesvc.models.base import CableModel, ModelParameterError, ModelState, as_numbers, where_bad
+from cablesvc.models.space import FitStats, Space, identity
 from cablesvc.models.reversal import REVERSAL_DEADBAND, track_reversals
 
 TABLE_COLUMNS = ("K0", "K1", "K2", "K3", "S_a", "alpha")
+#: the amplitude levels [m] of the nominal tables (the range 002 reports for Dyneema)
+NOMINAL_AMPLITUDES = (1e-4, 2.5e-4, 5e-4, 1e-3, 1.5e-3)
 #: points of the uniform amplitude grid the tables are resampled on when the model is built
 GRID_POINTS = 1024
 
@@ -88,6 +91,109 @@ class AmplitudeDependent(CableModel):
         "omega_init": "angular frequency assumed before two reversals are seen [rad/s]",
         "reversal_deadband": "motion back from the last extremum that counts as a reversal [m]",
     }
+    #: the kernel divides by them
+    positive_params = ("amplitude_init", "omega_init")
+    table_names = ("amplitudes",) + TABLE_COLUMNS
+    #: tables a parameter file must give
+    required_tables = ("amplitudes", "K0", "K1")
+    #: tables that are stiffnesses: > 0 at every amplitude level and cable
+    positive_tables = {"K1": "linear stiffness K1(A) of eq 8 of 002 [N/m]"}
+    has_nominal = True
+    fit_by_levels = True
+
+    # -- the parameter file -----------------------------------------------------------------
+    @classmethod
+    def table_problems(cls, tables):
+        problems = [f"tables.{k}: required for the amplitude model" for k in cls.required_tables if k not in tables]
+        for k, v in tables.items():
+            a = as_numbers(f"tables.{k}", v, problems, "a list of numbers")
+            if a is None:
+                continue
+            if k == "amplitudes":
+                if a.ndim != 1 or a.size < 1 or not np.all(np.isfinite(a)) or np.any(a <= 0) or np.any(np.diff(a) <= 0):
+                    problems.append(f"tables.amplitudes: must be a non-empty, strictly increasing list of finite "
+                                    f"positive amplitudes [m], got {v!r}"[:200])
+            elif a.ndim not in (1, 2) or not np.all(np.isfinite(a)):
+                problems.append(f"tables.{k}: must be a list of finite numbers (one per level) or a list of "
+                                f"per-cable rows")
+            elif k in cls.positive_tables and not np.all(a > 0):
+                problems.append(f"tables.{k}: the {cls.positive_tables[k]} must be > 0 at every amplitude level "
+                                f"and cable{where_bad(a, a > 0, table=True)}")
+        return problems
+
+    @classmethod
+    def from_file(cls, shape, params, options, tables):
+        return cls(shape, **tables, **params, **options)
+
+    @classmethod
+    def table_range(cls, tables):
+        if "amplitudes" not in tables:
+            return None
+        a = np.asarray(tables["amplitudes"], dtype=float)
+        return float(a.min()), float(a.max())
+
+    # -- nominal parameters -------------------------------------------------------------------
+    @classmethod
+    def nominal(cls, ea, cable_length):
+        """K1 = k = EA / L at every amplitude, a loss factor of 0.1 (S_a = 0.1 pi k A^2) and
+        alpha = 0.3: values of the order 002 reports for Dyneema at 60 N pretension
+        (amplitudes 0.1-1.5 mm). K1 is kept constant because with K0 = 0 and x_center = 0 the
+        polynomial carries the whole tension, and an amplitude-dependent K1 would make the
+        predicted tension jump whenever the amplitude estimate changes."""
+        k = np.asarray(ea, float) / np.asarray(cable_length, float)
+        amps = np.array(NOMINAL_AMPLITUDES)
+        n = len(amps)
+        K1 = np.outer(k, np.ones(n))
+        Sa = 0.1 * np.pi * K1 * amps ** 2
+        return {"tables": {"amplitudes": amps.tolist(), "K0": [0.0] * n, "K1": K1.tolist(), "K2": [0.0] * n,
+                           "K3": [0.0] * n, "S_a": Sa.tolist(), "alpha": [0.3] * n},
+                "identification": {"nominal": True, "amplitude_range": [float(amps[0]), float(amps[-1])]}}
+
+    # -- identification (a recording without amplitude levels: one constant table row) ----------
+    @classmethod
+    def search_space(cls, s: FitStats, *, degree: int = 3) -> Space:
+        """One constant table row ``K0..K3, S_a, alpha``; ``x_center`` fixed to the mean
+        elongation. (A hold-sine recording is fitted level by level instead:
+        :attr:`fit_by_levels`, :mod:`cablesvc.identify.amplitude_fit`.)"""
+        K, x, f, kk = s.K, s.x, s.f, s.kk
+        names = list(TABLE_COLUMNS)
+        X = np.maximum(np.abs(x - s.xm).max(axis=0), 1e-6)
+        fm = f.mean(axis=0)
+        slb = np.column_stack([fm - s.fr, np.zeros(K), -kk / X, -kk / X ** 2, np.zeros(K), np.zeros(K)])
+        sub = np.column_stack([fm + s.fr, 3 * kk, kk / X, kk / X ** 2, kk * X ** 2 * 2, np.full(K, 2.0)])
+        lb = np.column_stack([np.full(K, -np.inf)] * 4 + [np.zeros(K), np.zeros(K)])
+        ub = np.column_stack([np.full(K, np.inf)] * 5 + [np.full(K, 3.0)])
+        start = np.column_stack([fm, kk, np.zeros(K), np.zeros(K), 0.1 * np.pi * kk * X ** 2, np.full(K, 0.3)])
+        return Space(cls.name, names, ["N", "N/m", "N/m^2", "N/m^3", "J", "-"], slb, sub, identity, identity, lb, ub,
+                     {"x_center": s.xm}, start,
+                     notes=["amplitude (no amplitude levels in the recording): one constant table row; "
+                            "x_center fixed to the mean elongation"])
+
+    @classmethod
+    def build_lanes(cls, shape, kwargs, options, x):
+        """Table columns given per lane as one level; before two reversals the amplitude is
+        half the recorded elongation span."""
+        kw = dict(kwargs)
+        tab = {k: kw.pop(k)[..., None] for k in TABLE_COLUMNS}
+        span = np.ptp(x, axis=0)
+        kw.setdefault("amplitude_init", np.broadcast_to(np.maximum(0.5 * span, 1e-7), shape))
+        return cls(shape, amplitudes=[1e-12], **tab, **kw)
+
+    @classmethod
+    def file_sections(cls, m, ea, length, fitted, names, V, fixed, options):
+        """Constant table rows for the fitted cables on the nominal amplitude grid; the
+        other cables keep the nominal tables."""
+        nom = cls.nominal(ea, length)["tables"]
+        amps = np.asarray(nom["amplitudes"], float)
+        tables = {"amplitudes": amps.tolist()}
+        for k in TABLE_COLUMNS:
+            rows = np.broadcast_to(np.asarray(nom[k], float), (m, amps.size)).copy()
+            j = names.index(k)
+            rows[fitted] = V[:, j][:, None]
+            tables[k] = rows.tolist()
+        xc = np.zeros(m)
+        xc[fitted] = fixed["x_center"]
+        return {"params": {"x_center": xc.tolist()}, "options": {}, "tables": tables}
 
     def __init__(self, shape=(1, 1), *, amplitudes, K0, K1, K2=0.0, K3=0.0, S_a=0.0, alpha=0.0, **params):
         super().__init__(shape, **params)

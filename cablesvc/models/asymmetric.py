@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from cablesvc.models.boucwen import BoucWenFamily, BoucWenState
+from cablesvc.models.space import (FitStats, Space, hysteresis_search_columns, hysteresis_to_model,
+                                   hysteresis_to_search)
 
 
 #: the state is the Bouc-Wen family's (last elongation and z)
@@ -57,6 +59,38 @@ class AsymmetricBoucWen(BoucWenFamily):
     }
 
     hysteretic_stiffness = "alpha"
+    stiffness_params = ("k1",)          # k1 of 001 eq 4.3
+    nonnegative_params = ("alpha",)
+
+    @classmethod
+    def search_space(cls, s: FitStats, *, degree: int = 3) -> Space:
+        """``c, alpha, beta, gamma, n, k1, k2, k3, x_center`` (alpha, beta as log10, gamma as
+        gamma / beta) with ``b = 1`` fixed: scaling z by s and (b, c) by 1/s (alpha by s, beta
+        and gamma by s^(1-n)) leaves the force unchanged, so only the products are
+        identifiable."""
+        K, x, kk = s.K, s.x, s.kk
+        names = ["c", "alpha", "beta", "gamma", "n", "k1", "k2", "k3", "x_center"]
+        X = np.maximum(np.abs(x - s.x0z).max(axis=0), 1e-6)
+        d = np.maximum(4 * s.xs, 0.5 * np.abs(s.xm - s.x0z))
+        hlo, hhi = hysteresis_search_columns(s)
+        slb = np.column_stack([-1 / X ** 2, hlo, np.zeros(K), -kk / X, -kk / X ** 2, s.x0z - d])
+        sub = np.column_stack([1 / X ** 2, hhi, 3 * kk, kk / X, kk / X ** 2, s.x0z + d])
+        lb = np.column_stack([np.full(K, -np.inf), np.zeros(K), np.zeros(K), np.full(K, -np.inf), np.full(K, 0.3)]
+                             + [np.full(K, -np.inf)] * 4)
+        ub = np.column_stack([np.full(K, np.inf)] * 4 + [np.full(K, 6.0)] + [np.full(K, np.inf)] * 4)
+        start = hysteresis_to_model(0.5 * (slb + sub))
+        return Space(cls.name, names, ["1/m^2", "N/m", "1/(m N^(n-1))", "1/(m N^(n-1))", "-", "N/m", "N/m^2",
+                                       "N/m^3", "m"], slb, sub, hysteresis_to_model, hysteresis_to_search, lb, ub,
+                     {"b": np.ones(K)}, start,
+                     notes=["asymmetric: b = 1 fixed (z -> s z with b, c -> b/s, c/s, alpha -> s alpha and "
+                            "beta, gamma -> s^(1-n) beta, gamma leaves the force unchanged)"])
+
+    @classmethod
+    def unfitted_values(cls, m, ea, length, names):
+        """As the Bouc-Wen family's, with b = 0 (no shaping of z)."""
+        values = super().unfitted_values(m, ea, length, names)
+        values["b"] = np.zeros(m)
+        return values
 
     def check_params(self):
         super().check_params()

@@ -78,9 +78,64 @@ def broadcast_param(name: str, value: Any, shape: tuple[int, int]) -> np.ndarray
     return out
 
 
+def is_int(v: Any) -> bool:
+    """Whether v is an integer (a TOML integer; booleans are not)."""
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def has_bool(v: Any) -> bool:
+    """Whether v is, or holds, a boolean (TOML true/false): booleans are not numbers here."""
+    if isinstance(v, (bool, np.bool_)):
+        return True
+    if isinstance(v, np.ndarray):
+        return v.dtype == bool
+    if isinstance(v, (list, tuple)):
+        return any(has_bool(x) for x in v)
+    return False
+
+
+def as_numbers(field: str, v: Any, problems: list[str], what: str = "a number or a list of numbers") -> np.ndarray | None:
+    """``v`` as a float array, or None after appending why it is not numbers (naming
+    ``field``) to ``problems``: booleans (TOML true/false) are not numbers here."""
+    if has_bool(v):
+        problems.append(f"{field}: must be {what}, got {v!r} (true/false is not a number)"[:200])
+        return None
+    try:
+        return np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        problems.append(f"{field}: must be {what}, got {v!r}"[:200])
+        return None
+
+
+def where_bad(a: np.ndarray, ok: np.ndarray, table: bool = False) -> str:
+    """``, got -5 (cable 3)`` for the first value of ``a`` that fails ``ok``: a scalar, one
+    value per cable, or (``table``) one per level or per-cable rows of levels."""
+    bad = np.argwhere(~np.broadcast_to(ok, a.shape))
+    if bad.size == 0:
+        return ""
+    idx = tuple(int(i) for i in bad[0])
+    v = float(a[idx]) if a.ndim else float(a)
+    if not idx:
+        where = ""
+    elif table:
+        where = f" (level {idx[-1]}" + (f", cable {idx[0]}" if len(idx) == 2 else ", every cable") + ")"
+    else:
+        where = f" (cable {idx[0]})"
+    return f", got {v:g}{where}"
+
+
 class CableModel(ABC):
     """Abstract cable force model. Subclasses set ``name``, ``param_names`` and
-    ``defaults`` and implement ``create_state`` and ``step``."""
+    ``defaults`` and implement ``create_state`` and ``step``.
+
+    The class is the one home of what the service knows of the model: besides the force
+    law (``step``), its parameter-file spec (class attributes below, ``file_options``,
+    ``file_param_names``, ``option_problem``, ``param_problems``, ``table_problems``,
+    ``from_file``), its nominal parameters from a robot file (``nominal``) and its
+    identification search space (``search_space``, ``build_lanes``, ``file_sections``).
+    Parameter loading (:mod:`cablesvc.config.params`), identification
+    (:mod:`cablesvc.identify.cable`), the twin and the kernel read them through
+    ``MODELS[name]``, never by the model's name."""
 
     name: ClassVar[str] = ""
     #: parameter names in the order identification uses them
@@ -89,6 +144,24 @@ class CableModel(ABC):
     defaults: ClassVar[dict[str, float]] = {}
     #: short human description of each parameter with its unit
     param_docs: ClassVar[dict[str, str]] = {}
+    #: parameters a parameter file must give > 0 for every cable (the step divides by them)
+    positive_params: ClassVar[tuple[str, ...]] = ()
+    #: the elastic stiffness [N/m] (linear: E*A [N]): > 0 for every cable, the default
+    #: applying where a file omits it. A cable's tension grows with its elongation: zero or
+    #: a negative stiffness makes the predicted tension fall, or stay put, as it stretches.
+    stiffness_params: ClassVar[tuple[str, ...]] = ()
+    #: hysteretic stiffnesses [N/m]: >= 0 (0: no hysteresis, what identification writes for
+    #: a cable it did not fit)
+    nonnegative_params: ClassVar[tuple[str, ...]] = ()
+    #: tables a parameter file may give ([tables]); () for a model without tables
+    table_names: ClassVar[tuple[str, ...]] = ()
+    #: whether the force has memory (hysteresis); False for a purely elastic law
+    hysteretic: ClassVar[bool] = True
+    #: whether :meth:`nominal` gives parameters from a robot file alone
+    has_nominal: ClassVar[bool] = False
+    #: whether identification fits the model level by level on a hold-sine recording
+    #: (tables over the elongation amplitude) where the recording has such levels
+    fit_by_levels: ClassVar[bool] = False
 
     def __init__(self, shape: tuple[int, int] = (1, 1), **params: Any) -> None:
         if len(shape) != 2 or shape[0] < 1 or shape[1] < 1:
@@ -120,6 +193,127 @@ class CableModel(ABC):
 
     def check_params(self) -> None:
         """Raise ModelParameterError for physically invalid parameter values."""
+
+    # -- the parameter file ([options], [params], [tables]) ------------------------------
+    @classmethod
+    def file_options(cls) -> tuple[str, ...]:
+        """Names a parameter file's [options] may give for this model."""
+        return cls.extra_options()
+
+    @classmethod
+    def file_param_names(cls) -> set[str] | None:
+        """Names a parameter file's [params] may give (None: any, checked when built)."""
+        return set(cls.param_names)
+
+    @classmethod
+    def option_problem(cls, key: str, value: Any, options: dict[str, Any]) -> str | None:
+        """The problem with option ``key`` (one of :meth:`file_options`) = ``value``, or None."""
+        return None
+
+    @classmethod
+    def option_problems(cls, options: dict[str, Any], known: set[str]) -> list[str]:
+        """One message per bad [options] entry whose key is in ``known`` (the options of any
+        model; the others are reported by the file loader)."""
+        allowed = set(cls.file_options())
+        problems = []
+        for k, v in options.items():
+            if k not in known:
+                continue
+            if k not in allowed:
+                problems.append(f"options.{k}: not an option of the {cls.name} model"
+                                + (f" (options: {sorted(allowed)})" if allowed else " (it has none)"))
+            else:
+                msg = cls.option_problem(k, v, options)
+                if msg:
+                    problems.append(msg)
+        return problems
+
+    @classmethod
+    def param_problems(cls, params: dict[str, Any]) -> list[str]:
+        """Value checks of a parameter file's [params]: one message per problem, naming the
+        field (numbers, finite, :attr:`positive_params`, :attr:`nonnegative_params`,
+        :attr:`stiffness_params` with the default where a file omits it)."""
+        problems = []
+        for k, v in params.items():
+            a = as_numbers(f"params.{k}", v, problems)
+            if a is None:
+                continue
+            if not np.all(np.isfinite(a)):
+                problems.append(f"params.{k}: values must be finite")
+            elif k in cls.positive_params and not np.all(a > 0):
+                problems.append(f"params.{k}: must be > 0, got {v!r}")
+            elif k in cls.nonnegative_params and not np.all(a >= 0):
+                problems.append(f"params.{k}: hysteretic stiffness must be >= 0 [N/m]{where_bad(a, a >= 0)}")
+        for k in cls.stiffness_params:
+            v = params.get(k, cls.defaults.get(k, 0.0))
+            if has_bool(v):
+                continue                        # reported above
+            try:
+                a = np.asarray(v, dtype=float)
+            except (TypeError, ValueError):
+                continue                        # reported above
+            if np.all(np.isfinite(a)) and not np.all(a > 0):
+                missing = "" if k in params else f" (not given: the default is {v!r})"
+                problems.append(f"params.{k}: the elastic stiffness must be > 0 for every cable"
+                                f"{where_bad(a, a > 0)}{missing}")
+        return problems
+
+    @classmethod
+    def table_problems(cls, tables: dict[str, Any]) -> list[str]:
+        """Value checks of a parameter file's [tables] (only for a model with
+        :attr:`table_names`)."""
+        return []
+
+    @classmethod
+    def from_file(cls, shape: tuple[int, int], params: dict[str, Any], options: dict[str, Any],
+                  tables: dict[str, Any]) -> "CableModel":
+        """Build the model from a checked parameter file's sections (arrays)."""
+        return cls(shape, **params, **options)
+
+    @classmethod
+    def table_range(cls, tables: dict[str, Any]) -> tuple[float, float] | None:
+        """Elongation amplitudes [m] a file's tables cover, if the model has such tables."""
+        return None
+
+    # -- nominal parameters from a robot file ---------------------------------------------
+    @classmethod
+    def nominal(cls, ea: np.ndarray, cable_length: np.ndarray) -> dict[str, dict[str, Any]]:
+        """Nominal parameter-file sections (``params``, ``tables``, ``identification``) for a
+        robot without identified parameters, from its cables' E*A [N] and a typical free
+        length [m] per cable (only where :attr:`has_nominal`)."""
+        raise ValueError(f"no nominal parameters for model {cls.name!r}; identify them with `cablesvc identify`")
+
+    # -- identification --------------------------------------------------------------------
+    @classmethod
+    def search_space(cls, s: Any, *, degree: int = 3) -> Any:
+        """The identification :class:`~cablesvc.models.space.Space` for the data statistics
+        ``s`` (:class:`~cablesvc.models.space.FitStats`)."""
+        raise NotImplementedError(f"{cls.name}: no identification search space")
+
+    @classmethod
+    def build_lanes(cls, shape: tuple[int, int], kwargs: dict[str, np.ndarray], options: dict[str, Any],
+                    x: np.ndarray) -> "CableModel":
+        """The model with one candidate parameter set per lane (identification), for the
+        elongation history ``x`` (N, cables) [m] it will run on."""
+        return cls(shape, **kwargs, **options)
+
+    @classmethod
+    def unfitted_values(cls, m: int, ea: np.ndarray, length: np.ndarray, names: list[str]) -> dict[str, np.ndarray]:
+        """Parameter values (name -> (m,)) written for the cables identification did not fit."""
+        raise NotImplementedError(f"{cls.name}: no values for unfitted cables")
+
+    @classmethod
+    def file_sections(cls, m: int, ea: np.ndarray, length: np.ndarray, fitted: list[int], names: list[str],
+                      V: np.ndarray, fixed: dict[str, np.ndarray], options: dict[str, Any]) -> dict[str, Any]:
+        """Parameter-file sections (``params``, ``options``, ``tables``) of an identification:
+        the fitted cables get the values ``V`` (k, n) of ``names`` and the ``fixed`` ones, the
+        others :meth:`unfitted_values` (E*A ``ea`` [N] and free length ``length`` [m] per cable)."""
+        values = cls.unfitted_values(m, ea, length, names)
+        for k, v in fixed.items():
+            values[k][fitted] = v
+        for j, nm in enumerate(names):
+            values[nm][fitted] = V[:, j]
+        return {"params": {k: v.tolist() for k, v in values.items()}, "options": dict(options), "tables": {}}
 
     @abstractmethod
     def create_state(self, x0: np.ndarray | float = 0.0) -> ModelState:

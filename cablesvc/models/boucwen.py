@@ -6,7 +6,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cablesvc.models.base import CableModel, ModelParameterError, ModelState
+from cablesvc.models.base import CableModel, ModelParameterError, ModelState, is_int
+from cablesvc.models.space import (FitStats, Space, hysteresis_search_columns, hysteresis_to_model,
+                                   hysteresis_to_search)
 
 INTEGRATORS = ("semi-implicit", "rk4")
 _TINY = 1e-300
@@ -161,6 +163,31 @@ class BoucWenFamily(CableModel):
     def extra_options(cls):
         return ("integrator", "substeps")
 
+    @classmethod
+    def option_problem(cls, key, value, options):
+        if key == "substeps" and not (is_int(value) and value >= 1):
+            return f"options.substeps: must be an integer >= 1, got {value!r}"
+        if key == "substeps":
+            integ = options.get("integrator", "semi-implicit")
+            most = max_live_substeps(integ if integ in INTEGRATORS else "semi-implicit")
+            if value > most:
+                return (f"options.substeps: {value} sub-steps per tick cannot fit the live tick; the {integ} "
+                        f"integrator allows at most {most} (half of a 1 kHz tick, derivation in "
+                        f"cablesvc/models/boucwen.py)")
+        elif key == "integrator" and not (isinstance(value, str) and value in INTEGRATORS):
+            return f"options.integrator: must be one of {list(INTEGRATORS)}, got {value!r}"
+        return None
+
+    @classmethod
+    def unfitted_values(cls, m, ea, length, names):
+        """The defaults, the elastic stiffness E*A / L and no hysteresis (hysteretic
+        stiffness 0, beta = gamma = 0, n = 1)."""
+        values = {nm: np.full(m, float(cls.defaults.get(nm, 0.0))) for nm in cls.param_names}
+        values.update({cls.stiffness_params[0]: np.asarray(ea, float) / length,
+                       cls.hysteretic_stiffness: np.zeros(m), "beta": np.zeros(m), "gamma": np.zeros(m),
+                       "n": np.ones(m)})
+        return values
+
     def check_params(self):
         if np.any(self.params["n"] <= 0):
             raise ModelParameterError(f"{self.name}: n must be > 0")
@@ -211,6 +238,30 @@ class BoucWen(BoucWenFamily):
         "n": "smoothness exponent [-]", "k3": "cubic stiffness [N/m^3]", "f0": "force offset [N]",
         "x_center": "elongation where xi = 0 [m]",
     }
+    stiffness_params = ("k_e",)         # k_e of eq 1 of 000
+    nonnegative_params = ("k_d",)
+
+    @classmethod
+    def search_space(cls, s: FitStats, *, degree: int = 3) -> Space:
+        """``k_e, k_d, beta, gamma, n, f0`` searched as k_e, log10 k_d, log10 beta,
+        g = gamma / beta in [-0.95, 1] (bounded z, 000 Sec 2), n, f0; ``x_center`` fixed to
+        the mean elongation (with k3 = 0, f0 and x_center are redundant: only
+        f0 - k_e x_center acts) and ``k3 = 0`` as in 000 Sec 6."""
+        K, f = s.K, s.f
+        names = ["k_e", "k_d", "beta", "gamma", "n", "f0"]
+        hlo, hhi = hysteresis_search_columns(s)
+        slb = np.column_stack([np.zeros(K), hlo, f.mean(axis=0) - s.fr])
+        sub = np.column_stack([3 * s.kk, hhi, f.mean(axis=0) + s.fr])
+        lb = np.column_stack([np.zeros(K), np.zeros(K), np.zeros(K), np.full(K, -np.inf), np.full(K, 0.3),
+                              np.full(K, -np.inf)])
+        ub = np.column_stack([np.full(K, np.inf)] * 4 + [np.full(K, 6.0), np.full(K, np.inf)])
+        start = hysteresis_to_model(0.5 * (slb + sub))
+        return Space(cls.name, names, ["N/m", "N/m", "1/(m N^(n-1))", "1/(m N^(n-1))", "-", "N"], slb, sub,
+                     hysteresis_to_model, hysteresis_to_search, lb, ub, {"x_center": s.xm, "k3": np.zeros(K)},
+                     start,
+                     notes=["boucwen: x_center fixed to the mean elongation (f0 and x_center are redundant "
+                            "when k3 = 0) and k3 = 0 (as in 000 Sec 6); identified in the form of 000 eq 1, "
+                            "whose beta and gamma are the benchmark's beta*gamma and beta*delta"])
 
     def check_params(self):
         # a negative stiffness makes the cable push back less the more it is stretched: no

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cablesvc.models.base import CableModel, ModelParameterError, ModelState
+from cablesvc.models.space import FitStats, Space, column
 
 
 def smooth_slack(x: np.ndarray, width: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> np.ndarray:
@@ -52,6 +53,29 @@ class LinearElastic(CableModel):
         "l_ref": "unstretched length used when step() gets no l0 [m]",
         "slack_width": "half-width of the smooth slack transition [m]",
     }
+    stiffness_params = ("ea",)      # eq 3 of 002
+    hysteretic = False
+    has_nominal = True
+
+    @classmethod
+    def nominal(cls, ea, cable_length):
+        """E*A of the robot file; ``l0`` is the motor length, so the free length is unused."""
+        return {"params": {"ea": np.asarray(ea, float).tolist()}, "identification": {"nominal": True}}
+
+    @classmethod
+    def search_space(cls, s: FitStats, *, degree: int = 3) -> Space:
+        """``ea`` [N] searched as log10 within a factor 5 of the slope times the mean motor
+        length, bounded to a factor 1000 in least squares; ``slack_width`` fixed at its
+        default, ``l_ref`` unused (the motor length is passed as l0, as the kernel does)."""
+        ea0 = s.kk * np.mean(s.l0, axis=0)
+        lo, hi = np.log10(ea0 / 5), np.log10(ea0 * 5)
+        return Space(cls.name, ["ea"], ["N"], column(lo), column(hi), lambda S: 10.0 ** S, lambda V: np.log10(V),
+                     column(ea0 * 1e-3), column(ea0 * 1e3), {}, column(ea0),
+                     notes=["linear: ea identified; slack_width fixed at its default; l0 = motor length"])
+
+    @classmethod
+    def unfitted_values(cls, m, ea, length, names):
+        return {"ea": np.asarray(ea, float).copy()}
 
     def check_params(self) -> None:
         for p in ("ea", "l_ref", "slack_width"):

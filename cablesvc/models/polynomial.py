@@ -6,8 +6,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cablesvc.models.base import CableModel, ModelParameterError, ModelState
+from cablesvc.models.base import CableModel, ModelParameterError, ModelState, is_int
+from cablesvc.models.space import FitStats, Space, identity
 from cablesvc.models.reversal import REVERSAL_DEADBAND, flip, track_reversals
+
+
+def _odd_degree(v) -> bool:
+    """The polynomial's degree n_p is an odd integer >= 1 (n_g = n_p, n_h = n_p - 1)."""
+    return is_int(v) and v >= 1 and v % 2 == 1
 
 
 @dataclass
@@ -37,9 +43,56 @@ class PolynomialHysteresis(CableModel):
     param_docs = {"x_center": "elongation the polynomial is centred on [m]",
                   "reversal_deadband": "motion back from the last extremum that counts as a reversal [m]"}
 
+    stiffness_params = ("a1",)       # a1 of eqs 4-7 of 002
+
+    @classmethod
+    def file_options(cls):
+        return ("degree",)
+
+    @classmethod
+    def file_param_names(cls):
+        return None                    # a0..a<degree>: checked when built, with the degree
+
+    @classmethod
+    def option_problem(cls, key, value, options):
+        if key == "degree" and not _odd_degree(value):
+            return f"options.degree: must be an odd integer >= 1, got {value!r}"
+        return None
+
+    @classmethod
+    def search_space(cls, s: FitStats, *, degree: int = 3) -> Space:
+        """``a0..a<degree>`` and ``x_center`` (g has only odd powers, so the pretension needs
+        x_center as the zero-force elongation), searched around the data's scales."""
+        K, x, f = s.K, s.x, s.f
+        names = [f"a{i}" for i in range(degree + 1)] + ["x_center"]
+        X = np.maximum(np.abs(x - s.x0z).max(axis=0), 1e-6)
+        fmax = np.maximum(np.abs(f).max(axis=0), 1.0)
+        slb = np.empty((K, degree + 2))
+        sub = np.empty((K, degree + 2))
+        for i in range(degree + 1):
+            sc = 2.0 * fmax / X ** i
+            slb[:, i], sub[:, i] = -sc, sc
+        slb[:, 0], sub[:, 0] = 0.0, 0.5 * s.fr                   # half-width of the friction band
+        slb[:, 1], sub[:, 1] = 0.0, 3.0 * s.kk                   # linear stiffness
+        d = np.maximum(4 * s.xs, 0.5 * np.abs(s.xm - s.x0z))
+        slb[:, -1], sub[:, -1] = s.x0z - d, s.x0z + d
+        start = np.zeros((K, degree + 2))
+        start[:, 1] = s.kk
+        start[:, -1] = s.x0z
+        return Space(cls.name, names, ["N"] + [f"N/m^{i}" for i in range(1, degree + 1)] + ["m"], slb, sub,
+                     identity, identity, np.full_like(slb, -np.inf), np.full_like(sub, np.inf), {}, start,
+                     options={"degree": int(degree)},
+                     notes=[f"polynomial (degree {degree}): a0..a{degree} and x_center identified"])
+
+    @classmethod
+    def unfitted_values(cls, m, ea, length, names):
+        """Zero coefficients but a1 = E*A / L: the linear elastic cable."""
+        values = {nm: np.zeros(m) for nm in names}
+        values["a1"] = np.asarray(ea, float) / length
+        return values
+
     def __init__(self, shape=(1, 1), degree: int = 3, **params):
-        if (isinstance(degree, (bool, np.bool_)) or not isinstance(degree, (int, np.integer))
-                or degree < 1 or degree % 2 == 0):
+        if not _odd_degree(degree):
             raise ModelParameterError(f"polynomial: degree must be an odd integer >= 1, got {degree!r}")
         self.degree = int(degree)
         self.param_names = tuple(f"a{i}" for i in range(degree + 1)) + ("x_center", "reversal_deadband")

@@ -47,7 +47,7 @@ import numpy as np
 
 from cablesvc.config.params import ModelParams, default_params
 from cablesvc.config.robot import RobotGeometry
-from cablesvc.models import AmplitudeDependent, CableModel
+from cablesvc.models import MODELS, AmplitudeDependent, CableModel
 
 __all__ = [
     "EFFECTS",
@@ -74,7 +74,7 @@ __all__ = [
 #: Effect stages in the order the truth model applies them each tick.
 STAGES = ("input", "force", "sensor")
 #: Base models a :class:`TruthConfig` can ask for by name when it has no ``base`` params.
-BASE_MODELS = ("amplitude", "linear")
+BASE_MODELS = tuple(name for name, cls in MODELS.items() if cls.has_nominal)
 
 
 class SimulationError(ValueError):
@@ -753,7 +753,7 @@ class TruthModel:
         p = self.params
         return {
             "base": {"model": p.model, "source": "nominal" if self.config.base is None else p.source,
-                     "hysteresis": p.model != "linear"},
+                     "hysteresis": MODELS[p.model].hysteretic},
             "noise_std": self.config.noise_std,
             "effects": [e.to_dict() for e in (self.effects or self.config.effects)],
         }
