@@ -194,6 +194,19 @@ def _bw_terms(A, B, D, nu, v, z):
     return g, gv, gz, p
 
 
+@numba.njit(cache=True, inline="always")
+def _trial(m, c, k, A, B, D, nu, h, hh, y, v, a, z, g, ui, y1, z1):
+    """At the trial end-of-step state (y1, z1): the Newmark (1/4, 1/2) velocity v1 and
+    acceleration a1, the Bouc-Wen terms g1, dg/dv, dg/dz, |z|^(nu-1) there, and the residuals
+    of the equation of motion (r1) and of the trapezoidal z update (r2)."""
+    v1 = 2.0 / h * (y1 - y) - v
+    a1 = 4.0 / hh * (y1 - y) - 4.0 / h * v - a
+    g1, gv1, gz1, p1 = _bw_terms(A, B, D, nu, v1, z1)
+    r1 = m * a1 + c * v1 + k * y1 + z1 - ui
+    r2 = z1 - z - 0.5 * h * (g + g1)
+    return v1, a1, g1, gv1, gz1, p1, r1, r2
+
+
 @numba.njit(cache=True)
 def _run_lane(u, h, th, y0, v0, z0, ycap, out_y, out_s, sens):
     """One lane: Newmark (1/4, 1/2) for y, trapezoidal rule for z, Newton on (y, z).
@@ -238,11 +251,7 @@ def _run_lane(u, h, th, y0, v0, z0, ycap, out_y, out_s, sens):
         z1 = z + h * g
         conv = False
         for it in range(40):
-            v1 = 2.0 / h * (y1 - y) - v
-            a1 = 4.0 / hh * (y1 - y) - 4.0 / h * v - a
-            g1, gv1, gz1, p1 = _bw_terms(A, B, D, nu, v1, z1)
-            r1 = m * a1 + c * v1 + k * y1 + z1 - ui
-            r2 = z1 - z - 0.5 * h * (g + g1)
+            v1, a1, g1, gv1, gz1, p1, r1, r2 = _trial(m, c, k, A, B, D, nu, h, hh, y, v, a, z, g, ui, y1, z1)
             j21 = -gv1                 # d r2 / d y1 = -h/2 * gv * 2/h
             j22 = 1.0 - 0.5 * h * gz1
             det = keff * j22 - j21
@@ -257,19 +266,13 @@ def _run_lane(u, h, th, y0, v0, z0, ycap, out_y, out_s, sens):
                 break
         if not conv:
             # accept a stalled iteration only if the residuals are at rounding level
-            v1 = 2.0 / h * (y1 - y) - v
-            a1 = 4.0 / hh * (y1 - y) - 4.0 / h * v - a
-            g1, gv1, gz1, p1 = _bw_terms(A, B, D, nu, v1, z1)
-            r1 = m * a1 + c * v1 + k * y1 + z1 - ui
-            r2 = z1 - z - 0.5 * h * (g + g1)
+            v1, a1, g1, gv1, gz1, p1, r1, r2 = _trial(m, c, k, A, B, D, nu, h, hh, y, v, a, z, g, ui, y1, z1)
             scale_f = abs(ui) + abs(k * y1) + abs(z1) + 1e-12
             if not (abs(y1) < ycap and abs(r1) <= 1e-9 * scale_f and abs(r2) <= 1e-9 * (abs(z1) + abs(z) + 1e-12)):
                 for q in range(i, n):
                     out_y[q] = np.nan
                 return i
-        v1 = 2.0 / h * (y1 - y) - v
-        a1 = 4.0 / hh * (y1 - y) - 4.0 / h * v - a
-        g1, gv1, gz1, p1 = _bw_terms(A, B, D, nu, v1, z1)
+        v1, a1, g1, gv1, gz1, p1, r1, r2 = _trial(m, c, k, A, B, D, nu, h, hh, y, v, a, z, g, ui, y1, z1)
         if sens:
             j22 = 1.0 - 0.5 * h * gz1
             det = keff * j22 + gv1
