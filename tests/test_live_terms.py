@@ -210,3 +210,14 @@ def test_discovery_since_runs_live_from_the_recordings_start(robot):
     off = d.predict()
     terms_live, terms_off = (live - base)[k0:], off - d.signals.f0
     assert np.max(np.abs(terms_live - terms_off) / np.maximum(np.abs(off), 1.0)) < 1e-9
+
+
+def test_bench_live_discovery_one_effect(tmp_path):
+    """The live-discovery flow on one effect (short): the daemon misses no tick, takes the
+    augmented file, and its live residual on the affected cable drops to the held-out level."""
+    from cablesvc.bench.live_discovery import run_effect
+    r = run_effect("viscous", half=80.0, onset=62.0, workdir=tmp_path)
+    assert r["missing"] == 0 and r["reload_accepted"]
+    assert "viscous" in r["named"] and r["cables"] == [3]
+    assert r["rmse_live_after"] < 0.5 * r["rmse_live_before"]
+    assert r["rmse_live_after"] < 1.5 * r["rmse_discover_heldout"]

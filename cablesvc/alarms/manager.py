@@ -130,16 +130,21 @@ class AlarmManager:
                                                             -1 if e.cable is None else e.cable))
 
     def reset_drift(self, cables=None) -> list[AlarmEvent]:
-        """Restart the drift baseline (after re-identification); returns clear events for the
-        drift alarms that were active on those cables."""
+        """Restart the residual detectors, drift's baseline and spread's statistics (after
+        re-identification or new parameters: the residual is another model's, and a spread
+        window still full of the old model's residual would raise again at once); returns
+        clear events for the drift and spread alarms that were active on those cables. Both
+        warm up again."""
         idx = range(self.geom.n_cables) if cables is None else cables
         out = []
         for i in idx:
-            e = self._active.get(("drift", int(i)))
-            if e is not None:
-                out.append(AlarmEvent("clear", "drift", int(i), e.severity, e.t, e.since, e.seq,
-                                      f"cable {int(i)}: drift baseline restarted"))
+            for code in ("drift", "spread"):
+                e = self._active.get((code, int(i)))
+                if e is not None:
+                    out.append(AlarmEvent("clear", code, int(i), e.severity, e.t, e.since, e.seq,
+                                          f"cable {int(i)}: {code} restarted with the new model"))
         self.drift.reset(cables)
+        self.spread.reset(cables)
         self._account(out)
         return out
 

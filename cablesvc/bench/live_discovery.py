@@ -161,7 +161,7 @@ def run_effect(name: str, *, half: float = 180.0, onset: float = 75.0, ramp: flo
         # discovery on the first half, analysing the ticks since the onset (``--since``: what a
         # user selects after the alarm); the baseline runs from the start, as the daemon's did
         disc = discover(_slice(rec, 0, n_half), robot, base, exact_baseline=True, since=onset)
-        reload = d.reload_params(disc.augmented_params().to_toml(), origin="bench live-discovery")
+        reload = d.reload_params(disc.augmented_params().to_toml(), origin="bench live-discovery", timeout=0.05)
         d.run(threading.Event())
     finally:
         d.close()
