@@ -215,8 +215,13 @@ def test_bench_kernel_cli_json():
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     rows = [json.loads(line) for line in out.stdout.splitlines()]
-    assert [r["input"] for r in rows] == ["normal", "reversal", "slack", "large", "no_pose", "machine"]
+    assert [r["input"] for r in rows] == ["normal", "reversal", "slack", "large", "no_pose", "terms", "terms_slack",
+                                          "terms_no_temperature", "machine"]
     machine = rows.pop()
+    terms = rows[5:]
+    rows = rows[:5]
+    for r in terms:              # every term on every cable, against the normal run of the same call
+        assert r["kernel_p50_ratio"] == r["p50_us"] / rows[0]["p50_us"] and r["alloc_bytes_per_tick"] < 0.1
     # the same-run machine baseline: a fixed numpy workload sized to the kernel's median
     assert machine["model"] == "none" and machine["calls"] > 10 and machine["scheduling"] == "default"
     assert 0 < machine["p50_us"] <= machine["p99_us"] <= machine["max_us"]
