@@ -221,7 +221,10 @@ def test_bench_kernel_cli_json():
     terms = rows[5:]
     rows = rows[:5]
     for r in terms:              # every term on every cable, against the normal run of the same call
-        assert r["kernel_p50_ratio"] == r["p50_us"] / rows[0]["p50_us"] and r["alloc_bytes_per_tick"] < 0.1
+        assert r["kernel_p50_ratio"] == r["p50_us"] / rows[0]["p50_us"]
+        # numpy's small internal caches still settle (~0.1 B/tick over 2000 ticks); an array
+        # kept per tick would be >= 96 B/tick
+        assert r["alloc_bytes_per_tick"] < 1.0
     # the same-run machine baseline: a fixed numpy workload sized to the kernel's median
     assert machine["model"] == "none" and machine["calls"] > 10 and machine["scheduling"] == "default"
     assert 0 < machine["p50_us"] <= machine["p99_us"] <= machine["max_us"]

@@ -1016,7 +1016,8 @@ class _DelayLine:
         tw = self.t[lo: lo + self.n]
         vw = self.v[lo: lo + self.n]
         j = np.searchsorted(tw, q, side="right") - 1
-        np.clip(j, 0, self.n - 1, out=j)
+        np.maximum(j, 0, out=j)                # (np.clip with int bounds keeps a small cache growing)
+        np.minimum(j, self.n - 1, out=j)
         j1 = np.minimum(j + 1, self.n - 1)
         ta, tb = tw[j], tw[j1]
         va = vw[j, :, :, self.cols]            # (m, k, lanes)
