@@ -37,7 +37,7 @@ from cablesvc.config.params import ModelParams
 from cablesvc.config.robot import RobotGeometry
 from cablesvc.kinematics import ForwardKinematics, InverseKinematics
 from cablesvc.kinematics.ik import PLANAR_WRENCH_ROWS
-from cablesvc.models import AmplitudeDependent, CableModel
+from cablesvc.models import CableModel
 from cablesvc.models.terms import TermStack
 
 try:   # the gufunc behind np.linalg.solve, which takes an output array (np.linalg.solve does not)
@@ -77,7 +77,6 @@ class Predictor:
         self.params = params
         m = self.n_cables = geom.n_cables
         self.model: CableModel = params.build(m, lanes=1)
-        self._is_amplitude = isinstance(self.model, AmplitudeDependent)
         # the parameter file's discovered terms (and baseline recalibration), live: None without
         self.terms: TermStack | None = TermStack.from_params(params.identification, m, lanes=1,
                                                              max_rate_hz=max_rate_hz)
@@ -178,10 +177,13 @@ class Predictor:
         self._quat[...] = d["pose.orientation"]
         self._t_prev = float(d["t_prev"][0])
         self._have_pose = True
-        if self._is_amplitude:
-            self._amp_src = self.state.memory[1, 0]
+        self._amp_src = self._amplitude_view()
         if self.terms is not None:
             self.terms.load_state_dict({k[6:]: v for k, v in d.items() if k.startswith("terms.")})
+
+    def _amplitude_view(self) -> np.ndarray | None:
+        a = self.model.amplitude(self.state)
+        return None if a is None else a[0]
 
     # -- the tick ---------------------------------------------------------------------
     def tick(self, t: float, motor_length, position=None, orientation=None, force=None,
@@ -207,8 +209,7 @@ class Predictor:
         if self.state is None:
             self.state = self.model.create_state(x)
             self._t_prev = t
-            if self._is_amplitude:
-                self._amp_src = self.state.memory[1, 0]
+            self._amp_src = self._amplitude_view()
         dt = max(t - self._t_prev, 0.0)             # time going backwards is the source's to reject
         self._t_prev = t
         fm = self.model.step(self.state, x, dt, ml)[0]
@@ -225,7 +226,7 @@ class Predictor:
         np.add(self._wres, self._w0, self._wres)
         np.copyto(self._meas, self._nan_m if force is None else force)
         np.subtract(self._meas, f, self._res)
-        if self._is_amplitude:                        # fixed when built, not a data branch
+        if self._amp_src is not None:                 # fixed by the model, not a data branch
             np.copyto(self._amp, self._amp_src)
         self.ticks += 1
         out = self.out

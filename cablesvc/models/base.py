@@ -319,6 +319,12 @@ class CableModel(ABC):
     def create_state(self, x0: np.ndarray | float = 0.0) -> ModelState:
         """Allocate and initialise the state at elongation ``x0`` [m], at rest."""
 
+    @staticmethod
+    def amplitude(state: ModelState) -> np.ndarray | None:
+        """The model's own elongation-amplitude estimate [m], (lanes, m), a view of ``state``
+        that each step updates; None for a model without one (the kernel then reports NaN)."""
+        return None
+
     @abstractmethod
     def step(self, state: ModelState, x: np.ndarray, dt: float, l0: np.ndarray | None = None) -> np.ndarray:
         """Advance one tick to elongation ``x`` [m] after ``dt`` [s]; return force [N].
