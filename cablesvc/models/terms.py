@@ -840,18 +840,13 @@ class Recalibration(Term):
                 "has_A": float(float(np.ptp(s.amplitude[:, c])) > 1e-6)}
 
     def columns(self, g, R, h, out):
-        o, ks, ah, c2, c3, k1, dA = out
+        o, ks, ah, c2 = out[:4]
         o.fill(1.0)
         np.copyto(ks, g.f0)
         _hysteretic_part(g.f0, g.x, R, ah, c2)
-        np.subtract(g.x, R["x_mean"], out=k1)            # xi
-        np.divide(k1, R["x_scale"], out=c3)              # xi / s
-        np.multiply(k1, c3, out=c2)                      # xi^2 / s
-        np.multiply(c2, c3, out=c3)                      # xi^3 / s^2
-        np.subtract(g.amplitude, R["A_mean"], out=dA)
-        np.multiply(k1, dA, out=k1)                      # (A - mean A) xi
-        smooth_sign(g.v, 1e-4, out=dA)
-        np.multiply(dA, g.amplitude, out=dA)             # A tanh(v / v_s)
+        # the backbone curvature and the amplitude dependence are the laws of those terms
+        _ASYMMETRIC.columns(g, R, h, out[3:5])           # xi^2 / s, xi^3 / s^2
+        _AMPLITUDE.columns(g, R, h, out[5:7])            # (A - mean A) xi, A tanh(v / v_s)
 
     def design(self, s, c, h):
         d = super().design(s, c, h)
@@ -864,6 +859,10 @@ class Recalibration(Term):
         f0 = s.f0[:, c]
         return {**params, "mean_f0_N": float(np.mean(f0)),
                 "offset_at_mean_N": float(params.get("o", 0.0) + params.get("k_s", 0.0) * np.mean(f0))}
+
+
+_ASYMMETRIC = AsymmetricHardening()
+_AMPLITUDE = AmplitudeStiffness()
 
 
 #: terms a parameter file may name, by name (the library and the baseline recalibration)
