@@ -266,7 +266,7 @@ def test_third_party_raw_mcap_file(tmp_path, chunked):
 
 def test_cablesvc_file_read_with_raw_mcap(tmp_path):
     p = tmp_path / "ours.mcap"
-    with McapRecordingWriter(p, "ipanema3", {"operator": "jm"}) as w:
+    with McapRecordingWriter(p, "ipanema3", {"operator": "jm"}, encoding="json") as w:
         for i in range(20):
             f = [100.0 + i, math.nan, 300.0] if i == 5 else [100.0 + i, 200.0, 300.0]
             w.write_input(i + 1, 12.345 + 0.001 * i, np.array([1.0, 2.0, 3.0]) + i,
@@ -304,7 +304,7 @@ def test_cablesvc_file_read_with_raw_mcap(tmp_path):
 
 def test_output_topics_and_unknown_topics(tmp_path):
     p = tmp_path / "live.mcap"
-    with McapRecordingWriter(p, "ipanema3") as w:
+    with McapRecordingWriter(p, "ipanema3", encoding="json") as w:
         custom = w.register_topic("/cablesvc/debug", "cablesvc.Debug", {"type": "object"})
         assert w.register_topic("/cablesvc/debug", "cablesvc.Debug", {"type": "object"}) == custom
         for i in range(10):
@@ -381,8 +381,8 @@ def test_error_missing_metadata(tmp_path):
     raw_write(p, [spec_message(0)], metadata={"format": "1"})
     with pytest.raises(RecordingError, match="missing key 'robot'"):
         read_mcap(p)
-    raw_write(p, [spec_message(0)], metadata={"robot": "r", "format": "2"})
-    with pytest.raises(RecordingError, match="format '2' is not supported") as ei:
+    raw_write(p, [spec_message(0)], metadata={"robot": "r", "format": "3"})
+    with pytest.raises(RecordingError, match="format '3' is not supported") as ei:
         read_mcap(p)
     assert "format" in ei.value.location
 
@@ -535,7 +535,7 @@ def test_truncated_file_reads_complete_chunks(tmp_path):
     n = 3000
     rec = make_recording(n=n, m=8, seed=3)
     full = tmp_path / "full.mcap"
-    write_mcap(full, rec, chunk_size=16 * 1024)
+    write_mcap(full, rec, chunk_size=16 * 1024, encoding="json")
     data = full.read_bytes()
     cut = int(len(data) * 0.6)
     with open(full, "rb") as f:
@@ -576,7 +576,7 @@ _KILL_SCRIPT = """
 import os, signal, sys
 from cablesvc.recording import McapRecordingWriter
 path, flush, chunk_size = sys.argv[1], sys.argv[2] == "flush", int(sys.argv[3])
-w = McapRecordingWriter(path, "killbot", chunk_size=chunk_size)
+w = McapRecordingWriter(path, "killbot", chunk_size=chunk_size, encoding="json")
 for i in range(1, 801):
     w.write_input(i, i * 0.001, [1.0 + i, 2.0, 3.0], force=[10.0, 20.0, 30.0])
     if i == 500 and flush:

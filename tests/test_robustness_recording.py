@@ -122,7 +122,7 @@ def test_write_input_refuses_t_whose_log_time_rounds_past_64_bits(tmp_path):
 def test_write_input_writes_all_nonfinite_pose_and_force_as_null(tmp_path):
     path = tmp_path / "nulls.mcap"
     nan = math.nan
-    with McapRecordingWriter(path, "r") as w:
+    with McapRecordingWriter(path, "r", encoding="json") as w:  # the JSON encoding's nulls
         w.write_input(0, 0.0, [1.0, 2.0], force=[nan, math.inf], position=[nan] * 3,
                       orientation=np.full(4, nan))
         w.write_input(1, 0.001, [1.0, 2.0], force=[nan, 3.0], position=[nan, 1.0, nan],

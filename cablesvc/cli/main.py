@@ -67,7 +67,7 @@ def cmd_simulate(args) -> int:
             kwargs[k] = v
     try:
         rec = simulate_recording(robot, args.scenario, out, truth=truth, duration=args.duration,
-                                 rate=args.rate, seed=args.seed, **kwargs)
+                                 rate=args.rate, seed=args.seed, encoding=args.encoding, **kwargs)
     except OSError as e:                    # a read-only directory, a full disk, ...: one line naming the file
         print(f"cablesvc simulate: cannot write {e.filename or args.out}: {e.strerror or e}", file=sys.stderr)
         return 1
@@ -194,6 +194,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--robot", default="ipanema3", help="robot name or .toml path")
     s.add_argument("--scenario", default="hold-sine", help="scenario name; --list shows them")
     s.add_argument("--out", help="output .mcap or .csv")
+    s.add_argument("--encoding", choices=["protobuf", "json"], default="protobuf",
+                   help=".mcap input encoding: protobuf (binary blocks, format 2, default) or json (format 1)")
     s.add_argument("--duration", type=float, default=None, help="seconds (default: the scenario's)")
     s.add_argument("--rate", type=float, default=1000.0, help="tick rate in Hz")
     s.add_argument("--seed", type=int, default=0)
@@ -251,6 +253,8 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_parser(bsub)
     from cablesvc.bench import fleet as fleet_bench
     fleet_bench.add_parser(bsub)
+    from cablesvc.bench import read as read_bench
+    read_bench.add_parser(bsub)
     b.set_defaults(func=lambda a: (b.print_help(), 2)[1])
     return p
 

@@ -105,6 +105,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
                                                         "(opens in Foxglove), OUT.csv the inputs only; an existing "
                                                         "file is kept unless --overwrite is given")
     o.add_argument("--overwrite", action="store_true", help="let --record replace an existing file")
+    o.add_argument("--record-encoding", choices=["protobuf", "json"], default="protobuf",
+                   help="input encoding of an .mcap --record: protobuf (binary blocks of ticks, format 2, "
+                        "default; fast to read) or json (one JSON message per tick, format 1)")
     o.add_argument("--snapshot", help="hysteresis state file (default for --source can / modbus: "
                                       "~/.local/state/cablesvc/<robot>.state.npz; replays and the simulator: none)")
     o.add_argument("--no-snapshot", action="store_true", help="neither restore nor write the hysteresis state")
@@ -464,7 +467,8 @@ def plan_fleet(args, cfg: dict[str, Any], file: str) -> tuple[dict[str, Any], li
                              connect=shared["connect"], record=record, snapshot=snapshot,
                              snapshot_interval_s=float(interval), alarm_config=alarm_cfg,
                              wait_subscriber_s=args.wait_subscriber,
-                             record_overwrite=bool(getattr(args, "overwrite", False)))
+                             record_overwrite=bool(getattr(args, "overwrite", False)),
+                             record_encoding=getattr(args, "record_encoding", None) or "protobuf")
         plans.append(RobotPlan(where=f"robots[{i}]", options=opts, source=source))
 
     for first, again, name in duplicate_names([p.options.robot.name for p in plans]):
@@ -625,6 +629,7 @@ def _cmd_run(args) -> int:
         alarm_config=alarm_cfg,
         wait_subscriber_s=args.wait_subscriber,
         record_overwrite=bool(getattr(args, "overwrite", False)),
+        record_encoding=getattr(args, "record_encoding", None) or "protobuf",
         source_id=None if controller is None else sim_source_id(robot.name),
         params_file=str(params_file) if params_file else None,
     )

@@ -1,4 +1,4 @@
-"""Recording format 1 (specified in ``docs/recording-format.md``): MCAP and CSV.
+"""Recording formats 1 and 2 (specified in ``docs/recording-format.md``): MCAP and CSV.
 
 ``read_recording`` / ``write_recording`` dispatch on the file suffix; ``iter_inputs``
 streams ticks; ``McapRecordingWriter`` writes a live recording tick by tick (plus the
@@ -17,6 +17,8 @@ from .format import (
     ALARM_JSON_SCHEMA,
     ALARM_SCHEMA_NAME,
     ALARMS_TOPIC,
+    BLOCK_FORMAT_VERSION,
+    ENCODINGS,
     FORCES_JSON_SCHEMA,
     FORCES_SCHEMA_NAME,
     FORCES_TOPIC,
@@ -39,7 +41,9 @@ from .format import (
     write_recording,
 )
 from .mcap_io import (
+    DEFAULT_BLOCK_TICKS,
     DEFAULT_CHUNK_SIZE,
+    DEFAULT_ENCODING,
     McapRecordingWriter,
     iter_mcap_inputs,
     read_mcap,
@@ -51,7 +55,11 @@ __all__ = [
     "ALARM_JSON_SCHEMA",
     "ALARM_SCHEMA_NAME",
     "ALARMS_TOPIC",
+    "BLOCK_FORMAT_VERSION",
+    "DEFAULT_BLOCK_TICKS",
     "DEFAULT_CHUNK_SIZE",
+    "DEFAULT_ENCODING",
+    "ENCODINGS",
     "FORCES_JSON_SCHEMA",
     "FORCES_SCHEMA_NAME",
     "FORCES_TOPIC",

@@ -30,7 +30,16 @@ import numpy as np
 
 PathArg = Union[str, "PathLike[str]"]
 
+#: Version of CSV files and of MCAP files with JSON inputs (what version 1 readers read).
 FORMAT_VERSION = 1
+#: Version of MCAP files whose inputs use the binary block encoding (``cablesvc.InputBlock``,
+#: protobuf; ``protobuf_block.py``). Version 2 = version 1 + that encoding.
+BLOCK_FORMAT_VERSION = 2
+#: The ``format`` values the MCAP reader accepts.
+MCAP_FORMAT_VERSIONS = (FORMAT_VERSION, BLOCK_FORMAT_VERSION)
+#: Input encodings of the MCAP writers: ``protobuf`` (one binary message per block of ticks,
+#: format 2, the default) and ``json`` (one JSON message per tick, format 1).
+ENCODINGS = ("protobuf", "json")
 METADATA_NAME = "cablesvc"
 MESSAGE_ENCODING = "json"
 SCHEMA_ENCODING = "jsonschema"
@@ -478,10 +487,26 @@ _NAN4 = [math.nan] * 4
 
 
 class TickColumns:
-    """Accumulates ticks (lists of floats; None elements become NaN) into a Recording."""
+    """Accumulates ticks (lists of floats; None elements become NaN) and blocks of ticks
+    (arrays, :meth:`add_block`) into a Recording, in the order they were added.
+
+    The columns are numpy arrays grown by doubling their capacity (the part not yet
+    filled is never touched, so it takes no memory), and single ticks are kept as Python
+    lists only up to ``BATCH`` ticks: memory stays near the arrays' own size for any length
+    of recording. The Recording's arrays are views of the first ``n`` rows."""
+
+    BATCH = 65536
+    _WIDTH = {"seq": 1, "t": 1, "motor_length": None, "position": 3, "orientation": 4,
+              "force": None, "temperature": 1}
 
     def __init__(self, n_cables: Optional[int] = None):
         self.n_cables = n_cables
+        self._cols: dict[str, np.ndarray] = {}
+        self._n = 0
+        self._cap = 0
+        self._new_lists()
+
+    def _new_lists(self) -> None:
         self.seq: list[int] = []
         self.t: list[float] = []
         self.position: list[Optional[list]] = []
@@ -492,17 +517,17 @@ class TickColumns:
         self._any_pose = self._any_force = self._any_temp = False
 
     def __len__(self) -> int:
-        return len(self.t)
+        return self._n + len(self.t)
 
     def append(self, seq, t, position, orientation, motor_length, force, temperature) -> None:
         if self.n_cables is None:
             self.n_cables = len(motor_length)
         if len(motor_length) != self.n_cables:
             raise ValueError(
-                f"tick {len(self.t)}: {len(motor_length)} motor lengths, expected {self.n_cables}"
+                f"tick {len(self)}: {len(motor_length)} motor lengths, expected {self.n_cables}"
             )
         if force is not None and len(force) != self.n_cables:
-            raise ValueError(f"tick {len(self.t)}: {len(force)} forces, expected {self.n_cables}")
+            raise ValueError(f"tick {len(self)}: {len(force)} forces, expected {self.n_cables}")
         self.seq.append(seq)
         self.t.append(t)
         self.motor_length.append(motor_length)
@@ -516,37 +541,133 @@ class TickColumns:
         if temperature is not None:
             self._any_temp = True
         self.temperature.append(temperature)
+        if len(self.t) >= self.BATCH:
+            self._seal()
 
-    def build(self, robot: str, metadata: dict[str, str], **kw: Any) -> Recording:
+    def add_block(self, block: dict[str, Any]) -> None:
+        """Add ``n`` ticks as arrays: a dict with ``n``, ``seq`` (n,), ``t`` (n,),
+        ``motor_length`` (n, m) and ``position`` (n, 3), ``orientation`` (n, 4), ``force``
+        (n, m), ``temperature`` (n,), each None when no tick of the block has it."""
+        m = block["motor_length"].shape[1]
+        if self.n_cables is None:
+            self.n_cables = m
+        if m != self.n_cables:
+            raise ValueError(f"tick {len(self)}: {m} motor lengths, expected {self.n_cables}")
+        self._seal()
+        self._put(block)
+
+    def reserve(self, n_ticks: int) -> None:
+        """Make room for ``n_ticks`` ticks in all (a hint: more are still accepted; room
+        never filled costs address space, not memory)."""
+        if n_ticks > self._cap:
+            try:
+                self._grow(n_ticks)
+            except MemoryError:  # a hint from a file's statistics, which may be wrong
+                pass
+
+    # ----------------------------------------------------------------- column store
+    def _grow(self, cap: int) -> None:
+        n0 = self._n
+        for name, old in self._cols.items():
+            new = np.empty(self._shape(name, cap), dtype=old.dtype)
+            new[:n0] = old[:n0]
+            self._cols[name] = new
+        self._cap = cap
+
+    def _shape(self, name: str, rows: int) -> tuple[int, ...]:
+        w = self._WIDTH[name]
+        if w == 1:
+            return (rows,)
+        return (rows, self.n_cables or 0) if w is None else (rows, w)
+
+    def _put(self, block: dict[str, Any]) -> None:
+        n0, k = self._n, int(block["n"])
+        n1 = n0 + k
+        if n1 > self._cap:
+            self._grow(max(n1, 2 * self._cap, 1024))
+        for name in self._WIDTH:
+            a = block[name]
+            col = self._cols.get(name)
+            if a is None:
+                if col is not None:
+                    col[n0:n1] = np.nan
+                continue
+            if col is None:
+                dtype = np.int64 if name == "seq" else np.float64
+                try:
+                    col = np.empty(self._shape(name, self._cap), dtype=dtype)
+                except MemoryError:  # a reserve() hint too large: grow as needed instead
+                    if self._cap <= n1 or self._cols:
+                        raise
+                    self._cap = n1
+                    col = np.empty(self._shape(name, self._cap), dtype=dtype)
+                self._cols[name] = col
+                if n0:  # an optional part seen for the first time: the ticks before lack it
+                    col[:n0] = np.nan
+            col[n0:n1] = a
+        self._n = n1
+
+    def _seal(self) -> None:
+        """The listed ticks into the column store."""
         n = len(self.t)
+        if not n:
+            return
         m = self.n_cables or 0
-
-        def nan_if_all_nan(a: np.ndarray) -> Optional[np.ndarray]:
-            return None if np.isnan(a).all() else a
-
-        ml = np.array(self.motor_length, dtype=np.float64).reshape(n, m)
-        position = orientation = force = temperature = None
+        part: dict[str, Any] = {
+            "n": n,
+            "seq": np.array(self.seq, dtype=np.int64),
+            "t": np.array(self.t, dtype=np.float64),
+            "motor_length": np.array(self.motor_length, dtype=np.float64).reshape(n, m),
+            "position": None, "orientation": None, "force": None, "temperature": None,
+        }
         if self._any_pose:
-            position = np.array(
+            part["position"] = np.array(
                 [p if p is not None else _NAN3 for p in self.position], dtype=np.float64
             )
-            orientation = np.array(
+            part["orientation"] = np.array(
                 [q if q is not None else _NAN4 for q in self.orientation], dtype=np.float64
             )
-            if np.isnan(position).all() and np.isnan(orientation).all():
-                position = orientation = None
         if self._any_force:
             nanm = [math.nan] * m
-            force = nan_if_all_nan(
-                np.array([f if f is not None else nanm for f in self.force], dtype=np.float64)
+            part["force"] = np.array(
+                [f if f is not None else nanm for f in self.force], dtype=np.float64
             )
         if self._any_temp:
-            temperature = nan_if_all_nan(np.array(self.temperature, dtype=np.float64))
+            part["temperature"] = np.array(self.temperature, dtype=np.float64)
+        self._new_lists()
+        self._put(part)
+
+    def build(self, robot: str, metadata: dict[str, str], **kw: Any) -> Recording:
+        self._seal()
+        n, cols = self._n, self._cols
+        self._cols, self._n, self._cap = {}, 0, 0
+
+        def col(name: str) -> Optional[np.ndarray]:
+            a = cols.get(name)
+            return None if a is None else a[:n]
+
+        if "t" in cols:
+            t, seq, ml = col("t"), col("seq"), col("motor_length")
+        else:
+            t = np.zeros(0)
+            seq = np.zeros(0, dtype=np.int64)
+            ml = np.zeros((0, self.n_cables or 0))
+        position, orientation = col("position"), col("orientation")
+        if position is not None and orientation is not None and (
+            np.isnan(position).all() and np.isnan(orientation).all()
+        ):
+            position = orientation = None
+        force = col("force")
+        if force is not None and np.isnan(force).all():
+            force = None
+        temperature = col("temperature")
+        if temperature is not None and np.isnan(temperature).all():
+            temperature = None
         return Recording(
             robot=robot,
             metadata=metadata,
-            t=np.array(self.t, dtype=np.float64),
-            seq=np.array(self.seq, dtype=np.int64),
+            t=t,
+            seq=seq,
             motor_length=ml,
             position=position,
             orientation=orientation,
@@ -581,13 +702,18 @@ def read_recording(
     raise RecordingError(path, "file name", f"unknown suffix {suffix!r}: expected .mcap or .csv")
 
 
-def write_recording(path: PathArg, rec: Recording) -> None:
-    """Write ``rec`` as ``.mcap`` or ``.csv`` (dispatch on the suffix)."""
-    suffix = _suffix(path)
-    if suffix == ".mcap":
-        from .mcap_io import write_mcap
+def write_recording(path: PathArg, rec: Recording, *, encoding: Optional[str] = None) -> None:
+    """Write ``rec`` as ``.mcap`` or ``.csv`` (dispatch on the suffix).
 
-        write_mcap(path, rec)
+    ``encoding`` (MCAP only): ``"protobuf"`` (binary blocks, format 2; the default) or
+    ``"json"`` (one JSON message per tick, format 1). A CSV file ignores it."""
+    suffix = _suffix(path)
+    if encoding is not None and encoding not in ENCODINGS:
+        raise ValueError(f"encoding must be one of {list(ENCODINGS)}, got {encoding!r}")
+    if suffix == ".mcap":
+        from .mcap_io import DEFAULT_ENCODING, write_mcap
+
+        write_mcap(path, rec, encoding=encoding or DEFAULT_ENCODING)
         return
     if suffix == ".csv":
         from .csv_io import write_csv

@@ -1,15 +1,23 @@
-"""MCAP side of recording format 1: :class:`McapRecordingWriter`, :func:`read_mcap`,
+"""MCAP side of recording formats 1 and 2: :class:`McapRecordingWriter`, :func:`read_mcap`,
 :func:`iter_mcap_inputs`.
+
+Input encodings
+    ``protobuf`` (format 2, the default): one ``cablesvc.InputBlock`` message per block of
+    up to 1000 ticks, packed little-endian arrays (``protobuf_block.py``); the writer holds
+    the block in progress and writes it when full, on ``flush()`` and on ``close()``.
+    ``json`` (format 1): one JSON message per tick. The reader tells them apart by the input
+    channel's message encoding and reads both, also in one file.
 
 Writing
     One MCAP file: the header, the ``cablesvc`` metadata record (written straight away, so
-    it is at the start of the file), then zstd chunks holding the ``cablesvc.Input`` schema,
-    the ``/cablesvc/input`` channel and one JSON message per tick; ``close()`` writes the
+    it is at the start of the file), then zstd chunks holding the input schema, the
+    ``/cablesvc/input`` channel and the input messages; ``close()`` writes the
     summary (chunk, metadata indexes, statistics) and footer. The file is opened unbuffered:
     every record batch mcap's writer hands over (a finished chunk with its message indexes,
     the metadata, the summary) reaches the operating system in one ``write``. So a process
     killed with ``kill -9`` keeps every *finished* chunk; it loses the chunk in progress,
-    which is at most ``chunk_size`` bytes of uncompressed JSON. ``flush()`` finishes the
+    which is at most ``chunk_size`` bytes of uncompressed messages (and, with binary
+    inputs, the block in progress, which is never larger than a chunk). ``flush()`` finishes the
     chunk in progress (``mcap.writer.Writer.flush``, mcap >= 1.6) so a caller that flushes on
     a timer bounds the loss by time; ``flush(fsync=True)`` also survives power loss.
 
@@ -45,14 +53,18 @@ import numpy as np
 from mcap.exceptions import EndOfFile, McapError
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import Channel, DataEnd, Message, Metadata
+from mcap.records import Channel, DataEnd, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 from .. import __version__
 from ..jsonable import jsonable
+from . import protobuf_block as pb
 from .format import (
+    BLOCK_FORMAT_VERSION,
+    ENCODINGS,
     FORMAT_VERSION,
+    MCAP_FORMAT_VERSIONS,
     INPUT_JSON_SCHEMA,
     INPUT_SCHEMA_NAME,
     INPUT_TOPIC,
@@ -83,6 +95,41 @@ _COMPRESSION = {
 }
 
 _ENCODER = json.JSONEncoder(allow_nan=False, separators=(",", ":"))
+#: Ticks per ``cablesvc.InputBlock`` message (protobuf encoding) at most; fewer when one
+#: block of the robot's ticks would not fit in ``chunk_size`` (see ``_block_ticks``).
+DEFAULT_BLOCK_TICKS = 1000
+#: What the writers write unless told otherwise: the binary block encoding (format 2).
+DEFAULT_ENCODING = "protobuf"
+
+
+def _block_ticks(block_ticks: int, chunk_size: int, m: int) -> int:
+    """Ticks per block: ``block_ticks``, but a block never larger than a chunk, so what a
+    kill -9 loses stays bounded by ``chunk_size`` as with JSON (block in progress + chunk in
+    progress)."""
+    per_tick = 8 * (2 + 2 * m + 7 + 1)
+    return max(1, min(block_ticks, chunk_size // per_tick))
+
+
+def _check_encoding(encoding: str) -> str:
+    if encoding not in ENCODINGS:
+        raise ValueError(f"encoding must be one of {list(ENCODINGS)}, got {encoding!r}")
+    return encoding
+
+
+def _row64(x: Any, name: str, n: Optional[int]) -> np.ndarray:
+    """A 1-D float64 array of ``n`` values (the binary writer's check of one tick part)."""
+    if isinstance(x, np.ndarray) and x.dtype == np.float64:
+        a = x
+    else:
+        try:
+            a = np.asarray(x, dtype=np.float64)
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"{name} must be numbers: {e}") from None
+    if a.ndim != 1:
+        raise ValueError(f"{name} must be 1-D, has shape {a.shape}")
+    if n is not None and a.shape[0] != n:
+        raise ValueError(f"{name} has {a.shape[0]} values, expected {n}")
+    return a
 
 
 # ===================================================================== writing helpers
@@ -156,10 +203,14 @@ class _DirectFile:
 
 
 class McapRecordingWriter:
-    """Write a format-1 MCAP recording tick by tick (the live service, simulator, convert).
+    """Write an MCAP recording tick by tick (the live service, simulator, convert).
 
     ``robot`` is the robot's name; ``metadata`` are further key/values for the ``cablesvc``
     metadata record (str to str; ``robot`` and ``format`` are set by the writer).
+    ``encoding`` is the input encoding: ``"protobuf"`` (default; format 2: the ticks are
+    buffered and written as one ``cablesvc.InputBlock`` message per ``block_ticks`` ticks,
+    fewer when a block would be larger than ``chunk_size``; ``flush()`` and ``close()``
+    write the block in progress) or ``"json"`` (format 1: one JSON message per tick).
     ``chunk_size`` is the uncompressed chunk size in bytes; ``compression`` is ``"zstd"``,
     ``"lz4"`` or ``"none"``. ``overwrite=False`` refuses an existing file
     (``FileExistsError``) instead of replacing it. Use as a context manager; the file is closed (summary written)
@@ -175,10 +226,16 @@ class McapRecordingWriter:
         compression: str = "zstd",
         *,
         overwrite: bool = True,
+        encoding: str = DEFAULT_ENCODING,
+        block_ticks: int = DEFAULT_BLOCK_TICKS,
     ):
         if not isinstance(robot, str) or not robot:
             raise ValueError("robot must be a non-empty str (the robot's name)")
-        md = {"robot": robot, "format": str(FORMAT_VERSION)}
+        self.encoding = _check_encoding(encoding)
+        if block_ticks < 1:
+            raise ValueError("block_ticks must be >= 1")
+        binary = encoding == "protobuf"
+        md = {"robot": robot, "format": str(BLOCK_FORMAT_VERSION if binary else FORMAT_VERSION)}
         for k, v in (metadata or {}).items():
             if not isinstance(k, str) or not isinstance(v, str):
                 raise TypeError(f"metadata must map str to str, got {k!r}: {v!r}")
@@ -205,12 +262,20 @@ class McapRecordingWriter:
                 profile="", library=f"cablesvc/{__version__} ({LIBRARY_IDENTIFIER})"
             )
             self._writer.add_metadata(METADATA_NAME, md)
-            schema_id = self._writer.register_schema(
-                INPUT_SCHEMA_NAME, SCHEMA_ENCODING, json.dumps(INPUT_JSON_SCHEMA).encode()
-            )
-            self._input_channel = self._writer.register_channel(
-                INPUT_TOPIC, MESSAGE_ENCODING, schema_id
-            )
+            if binary:
+                schema_id = self._writer.register_schema(
+                    pb.SCHEMA_NAME, pb.SCHEMA_ENCODING, pb.SCHEMA_DATA
+                )
+                self._input_channel = self._writer.register_channel(
+                    INPUT_TOPIC, pb.MESSAGE_ENCODING, schema_id
+                )
+            else:
+                schema_id = self._writer.register_schema(
+                    INPUT_SCHEMA_NAME, SCHEMA_ENCODING, json.dumps(INPUT_JSON_SCHEMA).encode()
+                )
+                self._input_channel = self._writer.register_channel(
+                    INPUT_TOPIC, MESSAGE_ENCODING, schema_id
+                )
         except BaseException:
             self._file.close()
             self._closed = True
@@ -218,8 +283,13 @@ class McapRecordingWriter:
         self._channels: dict[str, int] = {INPUT_TOPIC: self._input_channel}
         self._schemas: dict[str, tuple[str, bytes]] = {}
         self._n_cables: Optional[int] = None
+        self._chunk_size = chunk_size
+        self._block_ticks = block_ticks
+        self._block: Optional[dict[str, np.ndarray]] = None  # protobuf: the block in progress
+        self._bn = 0  # ticks in the block in progress
+        self._b_any = [False, False, False]  # pose, force, temperature in the block
         self.n_inputs = 0
-        """Number of ticks written so far."""
+        """Number of ticks written so far (protobuf: including the block in progress)."""
 
     # ------------------------------------------------------------------ context
     def __enter__(self) -> "McapRecordingWriter":
@@ -260,6 +330,9 @@ class McapRecordingWriter:
             raise ValueError(f"seq = {seq} does not fit in a signed 64-bit integer")
         t = float(t)
         log_time = _log_time(t)
+        if self.encoding == "protobuf":
+            self._buffer_tick(seq, t, motor_length, force, position, orientation, temperature)
+            return
         ml = _float_list(motor_length, "motor_length", self._n_cables)
         if self._n_cables is None:
             if not ml:
@@ -298,6 +371,170 @@ class McapRecordingWriter:
             self._input_channel, log_time, data, log_time, seq & 0xFFFFFFFF
         )
         self.n_inputs += 1
+
+    # ------------------------------------------------------------------ binary blocks
+    def _new_block(self, m: int) -> None:
+        b = _block_ticks(self._block_ticks, self._chunk_size, m)
+        self._block = {
+            "seq": np.empty(b, dtype=np.int64),
+            "t": np.empty(b),
+            "motor_length": np.empty((b, m)),
+            "position": np.full((b, 3), np.nan),
+            "orientation": np.full((b, 4), np.nan),
+            "force": np.full((b, m), np.nan),
+            "temperature": np.full(b, np.nan),
+        }
+
+    def _buffer_tick(self, seq, t, motor_length, force, position, orientation, temperature) -> None:
+        """protobuf encoding: one tick into the block in progress (checked first, so a bad
+        tick changes nothing); a full block is written."""
+        ml = _row64(motor_length, "motor_length", self._n_cables)
+        m = ml.shape[0]
+        if m == 0:
+            raise ValueError("motor_length is empty: a robot has at least one cable")
+        f = None if force is None else _row64(force, "force", m)
+        if (position is None) != (orientation is None):
+            raise ValueError("position and orientation must be given together")
+        pos = ori = None
+        if position is not None:
+            pos = _row64(position, "position", 3)
+            ori = _row64(orientation, "orientation", 4)
+        temp = None if temperature is None else float(temperature)
+        if self._n_cables is None:
+            self._n_cables = m
+        if self._block is None:
+            self._new_block(m)
+        blk = self._block
+        assert blk is not None
+        i = self._bn
+        blk["seq"][i] = seq
+        blk["t"][i] = t
+        blk["motor_length"][i] = ml
+        if pos is not None:
+            blk["position"][i] = pos
+            blk["orientation"][i] = ori
+            self._b_any[0] = True
+        if f is not None:
+            blk["force"][i] = f
+            self._b_any[1] = True
+        if temp is not None:
+            blk["temperature"][i] = temp
+            self._b_any[2] = True
+        self._bn = i + 1
+        self.n_inputs += 1
+        if self._bn == blk["t"].shape[0]:
+            self._emit_block()
+
+    def _emit_block(self) -> None:
+        """Write the block in progress (if any) as one message and start an empty one."""
+        n, blk = self._bn, self._block
+        if not n or blk is None:
+            return
+        any_pose, any_force, any_temp = self._b_any
+        self._add_block(
+            blk["seq"][:n], blk["t"][:n], blk["motor_length"][:n],
+            blk["position"][:n] if any_pose else None,
+            blk["orientation"][:n] if any_pose else None,
+            blk["force"][:n] if any_force else None,
+            blk["temperature"][:n] if any_temp else None,
+        )
+        if any_pose:
+            blk["position"][:n] = np.nan
+            blk["orientation"][:n] = np.nan
+        if any_force:
+            blk["force"][:n] = np.nan
+        if any_temp:
+            blk["temperature"][:n] = np.nan
+        self._bn = 0
+        self._b_any = [False, False, False]
+
+    def _add_block(self, seq, t, ml, pos, ori, force, temp) -> None:
+        log_time = round(float(t[0]) * 1e9)
+        data = pb.encode_block(seq, t, ml, pos, ori, force, temp)
+        self._writer.add_message(
+            self._input_channel, log_time, data, log_time, int(seq[0]) & 0xFFFFFFFF
+        )
+
+    def write_inputs(
+        self,
+        seq: Any,
+        t: Any,
+        motor_length: Any,
+        force: Any = None,
+        position: Any = None,
+        orientation: Any = None,
+        temperature: Any = None,
+    ) -> None:
+        """Write ``N`` ticks at once from columns: ``seq`` (N,) integers, ``t`` (N,),
+        ``motor_length`` (N, m), ``force`` (N, m), ``position`` (N, 3), ``orientation``
+        (N, 4), ``temperature`` (N,); a part may be None (absent in every tick); NaN means
+        missing, a row of a part that is all NaN is that part absent in that tick.
+
+        protobuf encoding: the block in progress is written first, then whole blocks
+        straight from the arrays (no per-tick Python work). json: one ``write_input`` per tick.
+        """
+        self._check_open()
+        t = np.asarray(t, dtype=np.float64)
+        seq_a = np.asarray(seq)
+        ml = np.asarray(motor_length, dtype=np.float64)
+        if t.ndim != 1:
+            raise ValueError(f"t must be 1-D (N,), has shape {t.shape}")
+        n = t.shape[0]
+        if seq_a.shape != (n,) or (n and seq_a.dtype.kind not in "iu"):
+            raise ValueError(f"seq must be ({n},) integers, has shape {seq_a.shape}, dtype {seq_a.dtype}")
+        if ml.ndim != 2 or ml.shape[0] != n:
+            raise ValueError(f"motor_length has shape {ml.shape}, expected ({n}, m)")
+        if n == 0:
+            return
+        m = ml.shape[1]
+        if m == 0:
+            raise ValueError("motor_length is empty: a robot has at least one cable")
+        if self._n_cables is not None and m != self._n_cables:
+            raise ValueError(f"motor_length has {m} values per tick, expected {self._n_cables}")
+        if (position is None) != (orientation is None):
+            raise ValueError("position and orientation must be given together")
+
+        def col(a: Any, name: str, w: Optional[int]) -> Optional[np.ndarray]:
+            if a is None:
+                return None
+            a = np.asarray(a, dtype=np.float64)
+            want = (n,) if w is None else (n, w)
+            if a.shape != want:
+                raise ValueError(f"{name} has shape {a.shape}, expected {want}")
+            return a
+
+        f = col(force, "force", m)
+        pos, ori = col(position, "position", 3), col(orientation, "orientation", 4)
+        temp = col(temperature, "temperature", None)
+        ok = np.isfinite(t) & (t >= 0.0) & (t <= _LOG_TIME_MAX_S)
+        if not ok.all():
+            i = int(np.argmin(ok))
+            _log_time(float(t[i]))  # raises the writer's message
+            raise ValueError(f"t[{i}] = {t[i]!r} s cannot be an MCAP log_time")
+        if seq_a.dtype.kind == "u" and n and int(seq_a.max()) > _INT64_MAX:
+            raise ValueError("seq does not fit in a signed 64-bit integer")
+        seq_a = seq_a.astype(np.int64, copy=False)
+        if self.encoding == "json":
+            for i in range(n):
+                p = q = None
+                if pos is not None and not (np.isnan(pos[i]).all() and np.isnan(ori[i]).all()):
+                    p, q = pos[i], ori[i]
+                fi = None if f is None or np.isnan(f[i]).all() else f[i]
+                ti = None if temp is None else float(temp[i])
+                self.write_input(int(seq_a[i]), float(t[i]), ml[i], fi, p, q, ti)
+            return
+        self._emit_block()
+        if self._n_cables is None:
+            self._n_cables = m
+        b = _block_ticks(self._block_ticks, self._chunk_size, m)
+        for i in range(0, n, b):
+            j = min(i + b, n)
+            self._add_block(
+                seq_a[i:j], t[i:j], ml[i:j],
+                None if pos is None else pos[i:j], None if ori is None else ori[i:j],
+                None if f is None else f[i:j], None if temp is None else temp[i:j],
+            )
+            self.n_inputs += j - i
 
     # ------------------------------------------------------------------ other topics
     def register_topic(
@@ -365,6 +602,7 @@ class McapRecordingWriter:
         flush = getattr(self._writer, "flush", None)
         if flush is None:  # mcap < 1.6 has no public way to finish a chunk
             raise RuntimeError("McapRecordingWriter.flush() needs mcap >= 1.6 (Writer.flush)")
+        self._emit_block()
         flush()
         if fsync:
             self._file.fsync()
@@ -375,7 +613,10 @@ class McapRecordingWriter:
             return
         self._closed = True
         try:
-            self._writer.finish()
+            try:
+                self._emit_block()
+            finally:
+                self._writer.finish()
         finally:
             self._file.close()
 
@@ -390,16 +631,21 @@ def write_mcap(
     *,
     robot: Optional[str] = None,
     chunk_size: int = DEFAULT_CHUNK_SIZE,
+    encoding: str = DEFAULT_ENCODING,
+    block_ticks: int = DEFAULT_BLOCK_TICKS,
 ) -> None:
     """Write a whole :class:`Recording` as MCAP.
 
     ``robot`` overrides ``rec.robot`` (needed when it is empty, e.g. a CSV without
-    metadata). ``rec.extra`` payloads are written on their topics with log_time from their
-    ``t`` field, each topic's payloads in their list order (the order a reader finds them
-    in): a payload goes after the input tick with the same or the next smaller ``t``, but
-    never before the payloads listed before it on its topic. The documented output topics
-    get their schema, other topics a plain ``{"type": "object"}``.
+    metadata). ``encoding``: ``"protobuf"`` (binary blocks, format 2, the default) or
+    ``"json"`` (format 1). ``rec.extra`` payloads are written on their topics with log_time
+    from their ``t`` field, each topic's payloads in their list order (the order a reader
+    finds them in): a payload goes after the input tick (json) or block (protobuf) holding
+    the same or the next smaller ``t``, but never before the payloads listed before it on
+    its topic. The documented output topics get their schema, other topics a plain
+    ``{"type": "object"}``.
     """
+    _check_encoding(encoding)
     problems = rec.shape_problems()
     if problems:
         raise ValueError(f"{path}: cannot write recording: " + "; ".join(problems))
@@ -420,6 +666,35 @@ def write_mcap(
             queues.append((topic, q))
     heads = [0] * len(queues)
 
+    if encoding == "protobuf":
+        with McapRecordingWriter(path, robot, rec.metadata, chunk_size=chunk_size,
+                                 encoding=encoding, block_ticks=block_ticks) as w:
+            for topic in rec.extra:
+                if topic in OUTPUT_TOPICS:
+                    w.register_topic(topic)
+                else:
+                    w.register_topic(topic, topic, {"type": "object"})
+            n = rec.n_ticks
+            b = _block_ticks(block_ticks, chunk_size, max(rec.n_cables, 1))
+            for i in range(0, n, b):
+                j = min(i + b, n)
+                w.write_inputs(
+                    rec.seq[i:j], rec.t[i:j], rec.motor_length[i:j],
+                    None if rec.force is None else rec.force[i:j],
+                    None if not rec.has_pose else rec.position[i:j],  # type: ignore[index]
+                    None if not rec.has_pose else rec.orientation[i:j],  # type: ignore[index]
+                    None if rec.temperature is None else rec.temperature[i:j],
+                )
+                t_last = float(rec.t[j - 1])
+                for k, (topic, q) in enumerate(queues):
+                    h = heads[k]
+                    while h < len(q) and q[h][0] <= t_last:
+                        w.write(topic, q[h][0], q[h][1])
+                        h += 1
+                    heads[k] = h
+            _write_rest(w, queues, heads)
+        return
+
     n = rec.n_ticks
     t = rec.t.tolist()
     seq = rec.seq.tolist()
@@ -432,7 +707,7 @@ def write_mcap(
     def all_nan(row: list) -> bool:
         return all(v != v for v in row)
 
-    with McapRecordingWriter(path, robot, rec.metadata, chunk_size=chunk_size) as w:
+    with McapRecordingWriter(path, robot, rec.metadata, chunk_size=chunk_size, encoding="json") as w:
         for topic in rec.extra:
             if topic in OUTPUT_TOPICS:
                 w.register_topic(topic)
@@ -456,14 +731,19 @@ def write_mcap(
                     w.write(topic, q[h][0], q[h][1])
                     h += 1
                 heads[k] = h
-        while True:  # the rest, merged by t at the heads of the queues
-            live = [k for k in range(len(queues)) if heads[k] < len(queues[k][1])]
-            if not live:
-                break
-            k = min(live, key=lambda k: queues[k][1][heads[k]][0])
-            pt, payload = queues[k][1][heads[k]]
-            w.write(queues[k][0], pt, payload)
-            heads[k] += 1
+        _write_rest(w, queues, heads)
+
+
+def _write_rest(w: McapRecordingWriter, queues: list, heads: list) -> None:
+    """The extra payloads after the last input, merged by t at the heads of the queues."""
+    while True:
+        live = [k for k in range(len(queues)) if heads[k] < len(queues[k][1])]
+        if not live:
+            break
+        k = min(live, key=lambda k: queues[k][1][heads[k]][0])
+        pt, payload = queues[k][1][heads[k]]
+        w.write(queues[k][0], pt, payload)
+        heads[k] += 1
 
 
 # ===================================================================== reading helpers
@@ -601,6 +881,8 @@ def _absent(v: list) -> bool:
 
 
 _MISSING = object()
+#: ``messages()`` yields ``(BLOCK, decoded block)`` for a ``cablesvc.InputBlock`` message.
+BLOCK = "\x00block"
 
 
 class _McapSource:
@@ -616,6 +898,8 @@ class _McapSource:
         self.robot_cables = robot_cables
         self.keep_topics = frozenset(keep_topics) - {INPUT_TOPIC}
         self.summary_topics: Optional[set[str]] = None
+        # input messages per encoding from the summary statistics (a capacity hint only)
+        self.summary_inputs: dict[str, int] = {}
         try:
             self._f: BinaryIO = open(path, "rb")
         except FileNotFoundError:
@@ -677,11 +961,22 @@ class _McapSource:
                 if summary is not None:
                     if summary.channels:
                         self.summary_topics = {c.topic for c in summary.channels.values()}
+                        counts = (
+                            summary.statistics.channel_message_counts
+                            if summary.statistics is not None else {}
+                        )
+                        for c in summary.channels.values():
+                            if c.topic == INPUT_TOPIC and c.id in counts:
+                                enc = c.message_encoding
+                                self.summary_inputs[enc] = (
+                                    self.summary_inputs.get(enc, 0) + counts[c.id]
+                                )
                     if summary.metadata_indexes:
                         records = list(reader.iter_metadata())
             except (McapError, struct.error, ValueError, OSError):
                 records = []  # a damaged summary: fall back to the linear scan below
                 self.summary_topics = None
+                self.summary_inputs = {}
         if not any(r.name == METADATA_NAME for r in records):
             records = self._scan_metadata()
         found = [r for r in records if r.name == METADATA_NAME]
@@ -695,8 +990,8 @@ class _McapSource:
             raise RecordingError(
                 self.path,
                 "metadata",
-                f"no metadata record named {METADATA_NAME!r} ({have}); format "
-                f"{FORMAT_VERSION} requires one with 'robot' and 'format'"
+                f"no metadata record named {METADATA_NAME!r} ({have}); formats "
+                f"{FORMAT_VERSION} and {BLOCK_FORMAT_VERSION} require one with 'robot' and 'format'"
                 + self._truncated_hint(),
             )
         md = dict(found[0].metadata)
@@ -706,12 +1001,12 @@ class _McapSource:
                 raise RecordingError(
                     self.path, where, f"missing key {key!r} (it has {sorted(md)})"
                 )
-        if md["format"] != str(FORMAT_VERSION):
+        if md["format"] not in {str(v) for v in MCAP_FORMAT_VERSIONS}:
             raise RecordingError(
                 self.path,
                 f"{where}, key 'format'",
-                f"format {md['format']!r} is not supported: this cablesvc reads format "
-                f"{FORMAT_VERSION}",
+                f"format {md['format']!r} is not supported: this cablesvc reads formats "
+                + " and ".join(str(v) for v in MCAP_FORMAT_VERSIONS),
             )
         if (
             self.summary_topics is not None
@@ -751,11 +1046,15 @@ class _McapSource:
 
     # ---------------------------------------------------------------- messages
     def messages(self) -> Iterator[tuple[Optional[str], Any]]:
-        """Yield ``(None, parsed input tuple)`` and ``(topic, payload)`` in file order."""
+        """Yield ``(None, parsed input tuple)`` (json), ``(BLOCK, decoded block)``
+        (protobuf) and ``(topic, payload)`` in file order."""
         bounded = _Bounded(self._f, 0, self.layout.usable)
         records = StreamReader(bounded, validate_crcs=True).records  # type: ignore[arg-type]
         channels: dict[int, Channel] = {}
+        schemas: dict[int, Schema] = {}
         input_ids: set[int] = set()
+        block_ids: set[int] = set()
+        blocks = 0
         keep_ids: dict[int, str] = {}
         kept_index: dict[str, int] = defaultdict(int)
         k = 0
@@ -772,7 +1071,12 @@ class _McapSource:
                 raise self._corrupt(bounded.pos, e) from e
             if isinstance(rec, Message):
                 cid = rec.channel_id
-                if cid in input_ids:
+                if cid in block_ids:
+                    blk = self._parse_block(rec.data, k, blocks)
+                    k += blk["n"]
+                    blocks += 1
+                    yield BLOCK, blk
+                elif cid in input_ids:
                     tick = self._parse_input(rec.data, k)
                     k += 1
                     yield None, tick
@@ -797,16 +1101,27 @@ class _McapSource:
                         f"near byte {bounded.pos:,}",
                         f"message on channel id {cid}, which has no channel record before it",
                     )
+            elif isinstance(rec, Schema):
+                schemas[rec.id] = rec
             elif isinstance(rec, Channel):
                 channels[rec.id] = rec
                 self.topics.add(rec.topic)
-                if rec.topic == INPUT_TOPIC or rec.topic in self.keep_topics:
+                if rec.topic == INPUT_TOPIC and rec.message_encoding == pb.MESSAGE_ENCODING:
+                    self._check_block_channel(rec, schemas.get(rec.schema_id))
+                    block_ids.add(rec.id)
+                    self.input_channels += 1
+                elif rec.topic == INPUT_TOPIC or rec.topic in self.keep_topics:
                     if rec.message_encoding != MESSAGE_ENCODING:
+                        also = (
+                            f" (inputs: or {pb.MESSAGE_ENCODING!r} with schema "
+                            f"{pb.SCHEMA_NAME!r}, format {BLOCK_FORMAT_VERSION})"
+                            if rec.topic == INPUT_TOPIC else ""
+                        )
                         raise RecordingError(
                             self.path,
                             f"channel {rec.id} ({rec.topic})",
                             f"message encoding {rec.message_encoding!r}; format "
-                            f"{FORMAT_VERSION} uses {MESSAGE_ENCODING!r}",
+                            f"{FORMAT_VERSION} uses {MESSAGE_ENCODING!r}{also}",
                         )
                     if rec.topic == INPUT_TOPIC:
                         input_ids.add(rec.id)
@@ -815,6 +1130,58 @@ class _McapSource:
                         keep_ids[rec.id] = rec.topic
             elif isinstance(rec, DataEnd):
                 break
+
+    def _check_block_channel(self, ch: Channel, schema: Optional[Schema]) -> None:
+        where = f"channel {ch.id} ({ch.topic})"
+        if self.metadata["format"] != str(BLOCK_FORMAT_VERSION):
+            raise RecordingError(
+                self.path, where,
+                f"message encoding {ch.message_encoding!r} needs format "
+                f"{BLOCK_FORMAT_VERSION}, but the file says format {self.metadata['format']!r} "
+                f"(format {FORMAT_VERSION} inputs are {MESSAGE_ENCODING!r})",
+            )
+        if schema is None or schema.name != pb.SCHEMA_NAME or schema.encoding != pb.SCHEMA_ENCODING:
+            have = (
+                "no schema record before it" if schema is None
+                else f"schema {schema.name!r} ({schema.encoding!r})"
+            )
+            raise RecordingError(
+                self.path, where,
+                f"{pb.MESSAGE_ENCODING!r} inputs need the schema {pb.SCHEMA_NAME!r} with "
+                f"encoding {pb.SCHEMA_ENCODING!r}; the channel has {have}",
+            )
+
+    def _parse_block(self, data: bytes, k: int, b: int) -> dict:
+        try:
+            blk = pb.decode_block(data, self.n_cables)
+        except pb.BlockError as e:
+            if e.field == "cables" and self.n_cables is not None:
+                why = (
+                    f" (the robot has {self.n_cables} cables)"
+                    if self.robot_cables is not None
+                    else " (the first block fixed the cable count)"
+                )
+                e = pb.BlockError(e.field, e.reason + why)
+            reason = f"field {e.field!r}: {e.reason}" if e.field else e.reason
+            raise RecordingError(
+                self.path, f"message {k} on {INPUT_TOPIC}",
+                f"block {b} is not a valid {pb.SCHEMA_NAME}: {reason}",
+            ) from None
+        t = blk["t"]
+        fin = np.isfinite(t)
+        if not fin.all():
+            i = int(np.argmin(fin))
+            raise RecordingError(
+                self.path, f"message {k + i} on {INPUT_TOPIC}",
+                f"field 't': must be finite, got {float(t[i])!r} (block {b}, tick {i})",
+            )
+        if self.n_cables is None:
+            self.n_cables = blk["m"]
+        if self.first is None:
+            self.first = (int(blk["seq"][0]), float(t[0]))
+        self.last = (int(blk["seq"][-1]), float(t[-1]))
+        self.n_inputs += blk["n"]
+        return blk
 
     def _parse_input(self, data: bytes, k: int) -> tuple:
         try:
@@ -971,6 +1338,34 @@ def _as_tick(parsed: tuple) -> Tick:
     )
 
 
+def _block_ticks_of(blk: dict) -> Iterator[Tick]:
+    """The ticks of a decoded block, as the JSON reader yields them (own arrays; an
+    all-NaN pose/force/temperature is None)."""
+    n = blk["n"]
+    seq = blk["seq"].tolist()
+    t = blk["t"].tolist()
+    ml = blk["motor_length"]
+    pos, ori, force, temp = blk["position"], blk["orientation"], blk["force"], blk["temperature"]
+    has_pose = has_force = [False] * n
+    if pos is not None:
+        has_pose = (~(np.isnan(pos).all(axis=1) & np.isnan(ori).all(axis=1))).tolist()
+    if force is not None:
+        has_force = (~np.isnan(force).all(axis=1)).tolist()
+    temps: list = [None] * n
+    if temp is not None:
+        temps = [None if v != v else v for v in temp.tolist()]
+    for i in range(n):
+        yield Tick(
+            seq=seq[i],
+            t=t[i],
+            position=pos[i].copy() if has_pose[i] else None,
+            orientation=ori[i].copy() if has_pose[i] else None,
+            motor_length=ml[i].copy(),
+            force=force[i].copy() if has_force[i] else None,
+            temperature=temps[i],
+        )
+
+
 # ===================================================================== public readers
 def read_mcap(
     path: PathArg,
@@ -991,9 +1386,24 @@ def read_mcap(
         cols = TickColumns(robot_cables)
         extra: dict[str, list] = {topic: [] for topic in sorted(src.keep_topics)}
         append = cols.append
+        hinted = False
         for topic, item in src.messages():
             if topic is None:
+                if not hinted:
+                    hinted = True
+                    cols.reserve(src.summary_inputs.get(MESSAGE_ENCODING, 0))
                 append(*item)
+            elif topic is BLOCK:
+                if not hinted:
+                    # one allocation of the right size instead of growing the columns (fresh
+                    # memory is what costs: every byte of a grown copy is faulted in again);
+                    # the statistics count messages, so blocks like the first one are assumed
+                    hinted = True
+                    cols.reserve(
+                        src.summary_inputs.get(MESSAGE_ENCODING, 0)
+                        + src.summary_inputs.get(pb.MESSAGE_ENCODING, 0) * item["n"]
+                    )
+                cols.add_block(item)
             else:
                 extra[topic].append(item)
         src.check_input_channel()
@@ -1024,6 +1434,8 @@ def _iter_ticks(src: _McapSource) -> Iterator[Tick]:
         for topic, item in src.messages():
             if topic is None:
                 yield _as_tick(item)
+            elif topic is BLOCK:
+                yield from _block_ticks_of(item)
         src.check_input_channel()
         trunc = src.truncation()
     finally:

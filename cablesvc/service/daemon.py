@@ -85,6 +85,7 @@ class DaemonOptions:
     exit_when_finished: bool = True              # replay: stop at the end of the file
     record_queue: int = 100_000                  # ticks the recorder may lag behind
     record_overwrite: bool = False               # replace an existing record file (else refused)
+    record_encoding: str = "protobuf"            # .mcap inputs: protobuf (binary blocks, format 2) | json
     wait_subscriber_s: float = 0.0               # before reading the source, wait this long for a subscriber
     direct: bool = True                          # process ticks on the source's receive thread (no hand-off)
     input_fault_clear_s: float = 5.0             # input_fault clears after this long without a rejection
@@ -238,7 +239,8 @@ class Recorder:
     """
 
     def __init__(self, path: Path, robot: str, metadata: dict[str, str], maxsize: int, *,
-                 block: bool = False, overwrite: bool = True, stall_s: float = 10.0):
+                 block: bool = False, overwrite: bool = True, stall_s: float = 10.0,
+                 encoding: str = "protobuf"):
         from cablesvc.recording import ALARMS_TOPIC, FORCES_TOPIC, McapRecordingWriter
         from cablesvc.recording.csv_io import CsvRecordingWriter
 
@@ -251,7 +253,8 @@ class Recorder:
                 md["params_json"] = json.dumps(md.pop("params"))
             self.writer = CsvRecordingWriter(path, robot, metadata=md, overwrite=overwrite)
         else:
-            self.writer = McapRecordingWriter(path, robot, metadata=metadata, overwrite=overwrite)
+            self.writer = McapRecordingWriter(path, robot, metadata=metadata, overwrite=overwrite,
+                                              encoding=encoding)
         self._topics = getattr(self.writer, "has_topics", True)
         self.q: queue.Queue = queue.Queue(maxsize=maxsize)
         self.block = block
@@ -536,7 +539,8 @@ class Daemon:
                 size = min(options.record_queue, REPLAY_RECORD_QUEUE) if replay else options.record_queue
                 try:
                     self.recorder = Recorder(Path(options.record), self.name, md, size, block=replay,
-                                             overwrite=options.record_overwrite)
+                                             overwrite=options.record_overwrite,
+                                             encoding=options.record_encoding)
                 except FileExistsError:
                     raise StartError(f"--record {options.record}: the file exists; it is kept "
                                      "(pass --overwrite to replace it)") from None

@@ -170,9 +170,11 @@ def simulate_twin(robot: Union[Robot, str, "os.PathLike[str]"], scenario: str, *
 def simulate_recording(robot: Union[Robot, str, "os.PathLike[str]"], scenario: str,
                        out: Optional[Union[str, "os.PathLike[str]"]] = None, *,
                        truth: Optional[TruthConfig] = None, duration: Optional[float] = None, rate: float = 1000.0,
-                       seed: int = 0, ambient: Optional[Ambient] = None, **scenario_kwargs: Any) -> Recording:
+                       seed: int = 0, ambient: Optional[Ambient] = None, encoding: Optional[str] = None,
+                       **scenario_kwargs: Any) -> Recording:
     """Simulate ``scenario`` on ``robot`` and return the :class:`Recording`; when ``out`` is
-    given also write it there (``.mcap`` or ``.csv`` by suffix). Arguments as
+    given also write it there (``.mcap`` or ``.csv`` by suffix; ``encoding``: the MCAP input
+    encoding, ``"protobuf"`` by default or ``"json"``, see ``write_recording``). Arguments as
     :func:`simulate_twin`. The metadata key ``truth`` holds the answer key for benchmarks
     (see the module docstring): tools under test must not read it."""
     if out is not None and Path(out).suffix.lower() not in (".mcap", ".csv"):
@@ -180,5 +182,5 @@ def simulate_recording(robot: Union[Robot, str, "os.PathLike[str]"], scenario: s
     run = simulate_twin(robot, scenario, truth=truth, duration=duration, rate=rate, seed=seed, ambient=ambient,
                         **scenario_kwargs)
     if out is not None:
-        write_recording(out, run.recording)
+        write_recording(out, run.recording, encoding=encoding)
     return run.recording
