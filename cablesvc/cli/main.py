@@ -255,6 +255,8 @@ def build_parser() -> argparse.ArgumentParser:
     fleet_bench.add_parser(bsub)
     from cablesvc.bench import read as read_bench
     read_bench.add_parser(bsub)
+    from cablesvc.bench import live_discovery
+    live_discovery.add_parser(bsub)
     b.set_defaults(func=lambda a: (b.print_help(), 2)[1])
     return p
 
