@@ -12,6 +12,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -405,3 +406,25 @@ def test_bench_read_writes_and_reads_both_encodings_identically():
     for r in res["rows"]:
         assert r["ticks"] == r["ticks_read"] == 3000 and r["identical"], r
         assert r["file_mb"] > 0 and r["peak_rss_mb"] >= r["rss_before_read_mb"] > 0
+
+
+def test_daemon_recorder_flushes_on_a_timer_so_a_kill_loses_little(tmp_path):
+    """Blocks hold up to 1000 ticks: without the recorder's timer a slow robot (200 Hz)
+    would keep 5 s of ticks in memory. With it, what was written a second ago is on disk."""
+    p = tmp_path / "live.mcap"
+    r = Recorder(p, "ipanema3", {}, maxsize=1000, block=True, flush_s=0.2)
+    try:
+        for k in range(50):
+            tk = TickInput(seq=k, t=k * 5e-3, motor_length=np.full(8, 1.0 + k), position=None, orientation=None,
+                           force=None, temperature=None, stamp_ns=0)
+            r.put((tk, {"seq": k, "t": tk.t, "force": [0.0] * 8}, []))
+        deadline = time.monotonic() + 10
+        n = 0
+        while time.monotonic() < deadline and n < 50:
+            time.sleep(0.1)
+            with pytest.warns(RecordingTruncatedWarning):   # still open: no summary yet
+                n = read_mcap(p).n_ticks
+        assert n == 50
+    finally:
+        assert r.close() == 0
+    assert read_mcap(p).motor_length[:, 0].tolist() == [1.0 + k for k in range(50)]
