@@ -211,12 +211,14 @@ def test_params_file_round_trip_and_errors(tmp_path, ipanema):
 
 
 def test_bench_kernel_cli_json():
-    out = subprocess.run([sys.executable, "-m", "cablesvc", "bench", "kernel", "--ticks", "2000", "--json"],
+    # every row but two of the three term rows (their cost is warming up 3000 ticks each;
+    # tests/test_live_terms.py runs those rows through run_kernel_bench)
+    inputs = [a for k in ("normal", "reversal", "slack", "large", "no_pose", "terms") for a in ("--input", k)]
+    out = subprocess.run([sys.executable, "-m", "cablesvc", "bench", "kernel", "--ticks", "2000", "--json", *inputs],
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     rows = [json.loads(line) for line in out.stdout.splitlines()]
-    assert [r["input"] for r in rows] == ["normal", "reversal", "slack", "large", "no_pose", "terms", "terms_slack",
-                                          "terms_no_temperature", "machine"]
+    assert [r["input"] for r in rows] == ["normal", "reversal", "slack", "large", "no_pose", "terms", "machine"]
     machine = rows.pop()
     terms = rows[5:]
     rows = rows[:5]
