@@ -230,7 +230,8 @@ def build_parser() -> argparse.ArgumentParser:
     bk.add_argument("--model", default="amplitude", help="model with nominal parameters (amplitude, linear)")
     bk.add_argument("--params", help="parameter file instead of nominal parameters")
     bk.add_argument("--ticks", type=int, default=100_000)
-    bk.add_argument("--input", action="append", choices=["normal", "reversal", "slack", "large", "no_pose"],
+    bk.add_argument("--input", action="append", choices=["normal", "reversal", "slack", "large", "no_pose", "terms",
+                                                         "terms_slack", "terms_no_temperature"],
                     help="only these inputs (repeatable; default all)")
     bk.add_argument("--json", action="store_true", help="one JSON object per run")
     bk.add_argument("--no-baseline", action="store_true",
