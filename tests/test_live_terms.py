@@ -221,3 +221,20 @@ def test_bench_live_discovery_one_effect(tmp_path):
     assert "viscous" in r["named"] and r["cables"] == [3]
     assert r["rmse_live_after"] < 0.5 * r["rmse_live_before"]
     assert r["rmse_live_after"] < 1.5 * r["rmse_discover_heldout"]
+
+
+def test_reload_hand_over_between_files_with_other_terms(robot):
+    """The daemon's reload hands the kernel state to the new kernel: from a file without
+    terms to one with stateful terms (and back) the model memory is kept and the terms
+    start fresh, without an error."""
+    from cablesvc.service.daemon import _hand_over
+    rec = _recording("deadtime:0.25@5")
+    d = _discovery(rec, robot, ["deadtime", "boucwen", "creep"])
+    plain, with_terms = d.baseline, d.augmented_params()
+    _, p_old = _kernel_forces(rec, robot, plain, 0, 300)
+    p_new = Predictor(robot.geometry(), with_terms)
+    assert _hand_over(p_old, p_new) == "kept (same model family)"
+    more, _ = _kernel_forces(rec, robot, with_terms, 300, 400, pred=p_new)
+    assert np.all(np.isfinite(more))
+    p_back = Predictor(robot.geometry(), plain)
+    assert _hand_over(p_new, p_back) == "kept (same model family)"

@@ -973,6 +973,8 @@ class _BoucWenLive(LiveTerm):
         return {"z": self.z.copy(), "x_prev": self.x_prev.copy(), "started": self.started.copy()}
 
     def load_state_dict(self, d):
+        if "z" not in d or np.shape(d["z"]) != self.z.shape:     # a file without this term before
+            return
         np.copyto(self.z, d["z"])
         np.copyto(self.x_prev, d["x_prev"])
         np.copyto(self.started, d["started"])
