@@ -90,14 +90,6 @@ def make_onset_recording(spec: str, *, half: float, onset: float, ramp: float, s
                      temperature=rec.temperature), cables
 
 
-def _slice(rec, k0: int, k1: int):
-    from cablesvc.recording import Recording
-    cut = (lambda a: None if a is None else a[k0:k1])
-    return Recording(robot=rec.robot, metadata=dict(rec.metadata), t=rec.t[k0:k1], seq=rec.seq[k0:k1],
-                     motor_length=rec.motor_length[k0:k1], position=cut(rec.position),
-                     orientation=cut(rec.orientation), force=cut(rec.force), temperature=cut(rec.temperature))
-
-
 def _capturing_factory(port: int, forces: dict, alarms: list):
     from cablesvc.service.zenoh_io import Publisher, make_config
 
@@ -160,7 +152,7 @@ def run_effect(name: str, *, half: float = 180.0, onset: float = 75.0, ramp: flo
         d.run(threading.Event(), max_ticks=n_half)
         # discovery on the first half, analysing the ticks since the onset (``--since``: what a
         # user selects after the alarm); the baseline runs from the start, as the daemon's did
-        disc = discover(_slice(rec, 0, n_half), robot, base, exact_baseline=True, since=onset)
+        disc = discover(rec.slice(0, n_half), robot, base, exact_baseline=True, since=onset)
         reload = d.reload_params(disc.augmented_params().to_toml(), origin="bench live-discovery", timeout=0.05)
         d.run(threading.Event())
     finally:

@@ -337,20 +337,15 @@ def _since(rec: Any, s: Signals, since: float) -> tuple[Any, Signals]:
     baseline and the amplitude were computed over the whole recording, so their hysteresis
     state at the cut is the one the live kernel has there."""
     import copy as _copy
-    from cablesvc.recording import Recording
 
     k0 = int(np.searchsorted(s.t, since - 1e-9))
     if s.n - k0 < 200:
         raise DiscoveryError(f"--since {since:g} s leaves {s.n - k0} ticks of the recording; discovery needs >= 200")
-    cut = (lambda a: None if a is None else np.asarray(a)[k0:])
-    r2 = Recording(robot=rec.robot, metadata=dict(rec.metadata), t=np.asarray(rec.t)[k0:],
-                   seq=np.asarray(rec.seq)[k0:], motor_length=cut(rec.motor_length), position=cut(rec.position),
-                   orientation=cut(rec.orientation), force=cut(rec.force), temperature=cut(rec.temperature))
     s2 = _copy.copy(s)
     for k in ("t", "y", "f0", "x", "v", "v_slide", "wrap", "free_length", "amplitude", "train"):
         setattr(s2, k, getattr(s, k)[k0:])
-    s2.temperature = cut(s.temperature)
-    return r2, s2
+    s2.temperature = None if s.temperature is None else s.temperature[k0:]
+    return rec.slice(k0), s2
 
 
 def discover(recording: Any, robot: Union[Robot, str, "os.PathLike[str]"],

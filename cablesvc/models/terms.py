@@ -1126,7 +1126,6 @@ class TermStack:
                  max_rate_hz: float = 2000.0, clock_origin: Optional[float] = None):
         self.m, self.lanes = m, lanes
         self.max_rate_hz = float(max_rate_hz)
-        self.names = [t.name for t in terms]
         self.delay = next((t for t in terms if t.delays_input), None)
         self.live = [t.live(tables.get(t.name, {}), lanes, m) for t in terms if not t.delays_input]
         shp = (lanes, m)
