@@ -1,0 +1,133 @@
+"""Discovery and identification at the size of real logs (issue 17 item 1): the streamed
+path (cablesvc.discover.stream) against the in-memory one, piece boundaries inside
+hysteresis branches, decimation, the bounded group sampling, and the chunk reader."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cablesvc.config.robot import load_robot
+from cablesvc.discover import discover, library
+from cablesvc.discover.pipeline import baseline_params, build_signals
+from cablesvc.discover.stream import _Acc, amplitude_stream, discover_stream, read_reduced, reduced_recording
+from cablesvc.models.reversal import reversal_amplitude
+from cablesvc.recording import read_recording, write_recording
+from cablesvc.recording.chunks import iter_chunks
+from cablesvc.simulate import TruthConfig, effect_from_spec, simulate_recording
+
+ROBOT = "ipanema3"
+
+
+def _sim(path, specs, seed, duration, rate):
+    eff = [effect_from_spec(s, 8) for s in specs]
+    return simulate_recording(ROBOT, "trajectory", path, truth=TruthConfig(effects=eff, noise_std=0.1),
+                              duration=duration, rate=rate, seed=seed)
+
+
+def test_amplitude_stream_equals_the_whole_record():
+    rng = np.random.default_rng(3)
+    x = np.cumsum(rng.normal(0, 2e-6, (6000, 3)), axis=0) + 1e-4 * np.sin(np.arange(6000)[:, None] / 90.0 + [0, 1, 2])
+    want = reversal_amplitude(x)
+    assert np.count_nonzero(np.diff(want[:, 0])) > 20            # many reversals
+    for cuts in ([6000], [1, 2, 997, 3000, 6000], list(range(37, 6000, 211)) + [6000]):
+        st, parts, a = None, [], 0
+        for b in cuts:
+            amp, st = amplitude_stream(x[a:b], st)
+            parts.append(amp)
+            a = b
+        np.testing.assert_array_equal(np.concatenate(parts), want)
+
+
+def test_chunk_reader_equals_read_recording(tmp_path):
+    rec = _sim(None, [], 2, 12.0, 200)          # 2400 ticks: three binary blocks
+    for name, enc in (("r.mcap", "protobuf"), ("j.mcap", "json"), ("c.csv", None)):
+        p = tmp_path / name
+        write_recording(p, rec, **({"encoding": enc} if enc else {}))
+        whole = read_recording(p)
+        parts = list(iter_chunks(p, 333))
+        assert len(parts) >= 3
+        for k in ("t", "motor_length", "position", "orientation", "force", "temperature"):
+            np.testing.assert_array_equal(np.concatenate([getattr(q, k) for q in parts]), getattr(whole, k), err_msg=k)
+
+
+def test_piece_boundaries_inside_hysteresis_branches_change_nothing(tmp_path):
+    """1 kHz, decimated by 10: pieces of 777 ticks (not a multiple of the decimation, so
+    means straddle the pieces) give the very signals one piece gives, though the
+    elongation moves at every boundary (mid-branch for the hysteresis and the amplitude)."""
+    p = tmp_path / "k.mcap"
+    _sim(p, ["pulley:0.004@1,4"], 5, 8.0, 1000)
+    rob = load_robot(ROBOT)
+    base = baseline_params(rob)
+    one = read_reduced(p, rob, base, chunk_ticks=10**6)
+    many = read_reduced(p, rob, base, chunk_ticks=777)
+    assert one.info["decimation"] == 10 and one.signals.n == 800
+    for k in ("t", "y", "f0", "x", "v", "v_slide", "wrap", "free_length", "amplitude", "temperature"):
+        np.testing.assert_array_equal(getattr(many.signals, k), getattr(one.signals, k), err_msg=k)
+    # most boundaries fell inside branches: the elongation was moving there on every cable
+    at = np.arange(777, 8000, 777) // 10
+    assert int(np.sum(np.all(np.abs(one.signals.v[at]) > 0, axis=1))) >= 5
+
+
+def test_streamed_without_decimation_is_the_in_memory_discovery(tmp_path):
+    """A 100 Hz recording no longer than the group budget: the streamed path reads it in
+    pieces and must give the in-memory signals, terms and parameters."""
+    p = tmp_path / "s.mcap"
+    rec = _sim(p, ["viscous:8000@3", "creep:0.8@2"], 11, 20.0, 100)
+    rob = load_robot(ROBOT)
+    terms = library(["viscous", "creep", "pulley"])
+    a = discover(rec, rob, terms=terms, exact_baseline=True)
+    b = discover_stream(p, rob, terms=terms, exact_baseline=True, chunk_ticks=500)
+    assert b.options["stream"]["decimation"] == 1 and b.options["stream"]["groups_kept"] == 2
+    s = build_signals(read_recording(p), rob, baseline_params(rob))
+    for k in ("f0", "x", "v", "amplitude"):
+        np.testing.assert_allclose(getattr(b.signals, k), getattr(s, k), rtol=0, atol=1e-12, err_msg=k)
+    assert sorted(a.named) == sorted(b.named) == ["creep", "viscous"]
+    for fa, fb in zip(sorted(a.findings, key=lambda f: f.term), sorted(b.findings, key=lambda f: f.term)):
+        assert fa.cables == fb.cables
+        for c in fa.cables:
+            for k, v in fa.params[c].items():
+                if isinstance(v, float):
+                    assert fb.params[c][k] == pytest.approx(v, rel=1e-9, abs=1e-12), (fa.term, c, k)
+
+
+def test_decimation_keeps_the_terms_and_their_parameters(tmp_path):
+    """1 kHz in memory against the streamed path decimated to 100 Hz: the same terms on the
+    same cables and the same physical parameters (viscous c_v within 3 %, pulley mu within 3 %)."""
+    p = tmp_path / "d.mcap"
+    rec = _sim(p, ["viscous:8000@3", "pulley:0.004@1"], 7, 12.0, 1000)
+    rob = load_robot(ROBOT)
+    terms = library(["viscous", "pulley"])
+    a = discover(rec, rob, terms=terms, exact_baseline=True)
+    b = discover_stream(p, rob, terms=terms, exact_baseline=True)
+    assert b.options["stream"]["decimation"] == 10
+    named = {f.term: f.cables for f in a.findings}
+    assert named == {f.term: f.cables for f in b.findings} == {"viscous": [3], "pulley": [1]}
+    fa = {f.term: f for f in a.findings}
+    fb = {f.term: f for f in b.findings}
+    assert fb["viscous"].params[3]["c_v"] == pytest.approx(fa["viscous"].params[3]["c_v"], rel=0.03)
+    assert fb["pulley"].params[1]["mu"] == pytest.approx(fa["pulley"].params[1]["mu"], rel=0.03)
+    assert fa["viscous"].params[3]["c_v"] == pytest.approx(8000, rel=0.05)
+
+
+def test_group_sampling_is_bounded_and_spans_the_recording():
+    for n_groups, k in ((5, 16), (60, 16), (360, 16), (1000, 6)):
+        acc = _Acc(10.0, k)
+        t = np.arange(0.0, n_groups * 10.0, 0.5)
+        for a in range(0, t.size, 97):
+            acc.add({"t": t[a:a + 97], "y": t[a:a + 97, None] * np.ones((1, 2))})
+        out, starts, kept = acc.result()
+        assert len(kept) <= k and (n_groups <= k or len(kept) > k // 2)
+        assert kept[0] == 0 and kept[-1] >= n_groups - 2 * acc.stride      # the whole recording is spanned
+        assert len(set(np.diff(kept))) <= 1                                   # evenly spaced
+        assert out["t"].size == 20 * len(kept) and int(starts.sum()) == (1 if n_groups <= k else len(kept))
+
+
+def test_reduced_recording_for_identify_is_the_block_means(tmp_path):
+    p = tmp_path / "i.mcap"
+    rec = _sim(p, [], 3, 3.0, 1000)
+    red, info = reduced_recording(p, load_robot(ROBOT), chunk_ticks=333)
+    assert info["decimation"] == 10 and red.t.size == 300 and info["gaps"] == 0
+    np.testing.assert_allclose(red.force, rec.force.reshape(300, 10, 8).mean(axis=1), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(red.motor_length, rec.motor_length.reshape(300, 10, 8).mean(axis=1), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(red.t, rec.t.reshape(300, 10).mean(axis=1) - rec.t[0], rtol=0, atol=1e-12)
