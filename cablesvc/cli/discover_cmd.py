@@ -1,6 +1,7 @@
 """``cablesvc discover``: find the physics a cable model leaves out of a recording.
 
     cablesvc discover --robot ipanema3 [--params P | --calib calib.mcap] rec.mcap [--report DIR] [--json] [--out params.toml]
+                      [--stream auto|on|off] [--analysis-rate HZ] [--max-groups K]
     cablesvc discover --boucwen [--data DIR] [--hold] [--json] [--report DIR]
     cablesvc discover logs/ 'more/*.mcap' [--scheduler tcp://host:8786 | --workers N] [--json] [--report DIR]
 
@@ -55,11 +56,22 @@ def cmd_discover(args: argparse.Namespace) -> int:
                 return fail(f"--calib {args.calib}: {e}")
             params = identify_cable(calib, robot, "amplitude").params
             params.identification["recording"] = str(args.calib)
-        rec = read_recording(args.recording)
         terms = library(args.terms.split(",")) if args.terms else None
         sel = ForwardSelector(SelectOptions(min_gain=args.min_gain))
-        d = discover(rec, robot, params, terms=terms, selector=sel, block=args.block,
-                     exact_baseline=args.exact_baseline, since=args.since)
+        from cablesvc.discover.stream import discover_stream, wants_stream
+        if args.stream == "on" and args.since:
+            return fail("--since needs the whole recording in memory: use it with --stream off or auto")
+        streamed = args.stream == "on" or (
+            args.stream == "auto" and not args.since
+            and wants_stream(args.recording, args.analysis_rate, args.block, args.max_groups))
+        if streamed:
+            d = discover_stream(args.recording, robot, params, terms=terms, selector=sel, block=args.block,
+                                exact_baseline=args.exact_baseline, rate=args.analysis_rate,
+                                max_groups=args.max_groups)
+        else:
+            rec = read_recording(args.recording)
+            d = discover(rec, robot, params, terms=terms, selector=sel, block=args.block,
+                         exact_baseline=args.exact_baseline, since=args.since)
     except (RobotFileError, RecordingError, ParamFileError, DiscoveryError, KeyError, OSError, ValueError) as e:
         return fail(str(e))
     files = {}
@@ -157,6 +169,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="analyse only the ticks from SECONDS after the recording's start on (e.g. since an "
                         "alarm); the baseline still runs from the start, so its hysteresis state there is the "
                         "live kernel's, and the written file's creep clock starts there")
+    p.add_argument("--stream", choices=("auto", "on", "off"), default="auto",
+                   help="stream the recording, decimated to --analysis-rate and sampled by whole split groups "
+                        "(bounded memory for long 1 kHz logs; docs/discovery.md). auto (default): when the "
+                        "recording is faster than 1.5 x the analysis rate or longer than --max-groups groups")
+    p.add_argument("--analysis-rate", type=float, default=100.0, metavar="HZ",
+                   help="streamed path: the rate the recording is decimated to by block means (default 100)")
+    p.add_argument("--max-groups", type=int, default=16, metavar="K",
+                   help="streamed path: the most split groups (4 blocks each) kept, spread over the whole "
+                        "recording (default 16)")
     p.add_argument("--min-gain", type=float, default=0.05,
                    help="least relative drop of the held-out MSE for a term to count (default 0.05)")
     from cablesvc.batch.cli import add_fleet_arguments

@@ -38,6 +38,11 @@ examples:
 """
 
 
+#: --stream auto reduces only recordings longer than this many ticks (2 minutes at 1 kHz):
+#: shorter ones, and every calibration recording of the benches, are fitted whole as before
+STREAM_MIN_TICKS = 120_000
+
+
 def _fail(msg: str) -> int:
     print(f"cablesvc identify: {msg}", file=sys.stderr)
     return 1
@@ -81,8 +86,24 @@ def cmd_identify(args: argparse.Namespace) -> int:
     rec_path = Path(args.recording)
     if not rec_path.exists():
         return _fail(f"{rec_path}: recording not found")
+    reduction = None
     try:
-        rec = read_recording(rec_path)
+        from cablesvc.discover.stream import reduced_recording, wants_stream
+        from cablesvc.recording import read_metadata
+        streamed = args.stream == "on" or (
+            args.stream == "auto" and wants_stream(rec_path, args.analysis_rate, 2.5, args.max_groups,
+                                                   min_ticks=STREAM_MIN_TICKS))
+        if streamed:
+            robot_name = args.robot or read_metadata(rec_path).get("robot", "")
+            try:
+                robot = load_robot(robot_name)
+            except RobotFileError as e:
+                return _fail(str(e))
+            rec, reduction = reduced_recording(rec_path, robot, rate=args.analysis_rate,
+                                               max_groups=args.max_groups)
+            rec.robot = read_metadata(rec_path).get("robot", "")
+        else:
+            rec = read_recording(rec_path)
     except RecordingError as e:
         return _fail(f"cannot read the recording: {e}")
     except (OSError, ValueError) as e:
@@ -116,6 +137,11 @@ def cmd_identify(args: argparse.Namespace) -> int:
     except ValueError as e:
         return _fail(str(e))
 
+    if reduction is not None:
+        from cablesvc.discover.stream import describe_reduction
+        fit.notes.append(describe_reduction(reduction) + f"; fitted on those ticks (the model runs across the "
+                         f"{reduction['gaps']} gaps between groups as if they were one record)")
+        fit.params.identification["stream"] = {k: v for k, v in reduction.items() if k != "stream_seconds"}
     _print_table(con, fit, format_value)
     if args.out:
         fit.params.identification["recording"] = str(rec_path)
@@ -203,6 +229,16 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--particles", type=int, default=10, help="PSO particles p (000: 10)")
     p.add_argument("--iterations", type=int, default=75, help="PSO iterations q (000: 75)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--stream", choices=("auto", "on", "off"), default="auto",
+                   help="read the recording in pieces, decimated to --analysis-rate and sampled by whole 10 s groups "
+                        "(bounded memory for long 1 kHz logs; docs/identification.md). auto (default): when the "
+                        "recording has more than 120 000 ticks and is faster than 1.5 x the analysis rate or "
+                        "longer than --max-groups groups")
+    p.add_argument("--analysis-rate", type=float, default=100.0, metavar="HZ",
+                   help="streamed: the rate the recording is decimated to by block means (default 100)")
+    p.add_argument("--max-groups", type=int, default=6, metavar="K",
+                   help="streamed: the most 10 s groups kept, spread over the whole recording (default 6: "
+                        "6000 ticks at 100 Hz, what a 1-minute log gives)")
     p.add_argument("--json", action="store_true",
                    help="print the fleet JSON (one row per recording and the fleet summary; runs as a fleet)")
     from cablesvc.batch.cli import add_fleet_arguments

@@ -258,6 +258,8 @@ def build_parser() -> argparse.ArgumentParser:
     read_bench.add_parser(bsub)
     from cablesvc.bench import live_discovery
     live_discovery.add_parser(bsub)
+    from cablesvc.bench import discover_scale
+    discover_scale.add_parser(bsub)
     b.set_defaults(func=lambda a: (b.print_help(), 2)[1])
     return p
 

@@ -221,6 +221,10 @@ class Discovery:
 
     def summary(self) -> list[str]:
         lines = [self.verdict()] if self.options.get("mode") == "identified" else []
+        st = self.options.get("stream")
+        if st:
+            from cablesvc.discover.stream import describe_reduction
+            lines.append(describe_reduction(st) + "; fits and held-out scores are on those ticks")
         loc = self.location
         if loc["flagged"]:
             lines.append("cables whose residual exceeds the sensor-noise floor: "
@@ -319,6 +323,7 @@ class Discovery:
             "rmse_test_after": [float(v) for v in self.rmse_after],
             "noise_floor": [float(v) for v in self.noise],
             "rmse_reduction": self.reduction(),
+            "stream": self.options.get("stream"),
             "summary": self.summary(),
             "cables": m,
         }
@@ -377,15 +382,37 @@ def discover(recording: Any, robot: Union[Robot, str, "os.PathLike[str]"],
     s = build_signals(rec, rob, base)
     if since is not None and since > 0:
         rec, s = _since(rec, s, float(since))
+    return _discover_signals(rec, rob, base, s, terms=terms, selector=selector, block=block,
+                             exact_baseline=exact_baseline, t_origin=float(rec.t[0]))
+
+
+def _discover_signals(rec: Any, rob: Robot, base: ModelParams, s: Signals, *, terms: Optional[list[Term]],
+                      selector: Any, block: float, exact_baseline: bool, t_origin: float,
+                      breaks: Optional[np.ndarray] = None) -> Discovery:
+    """Discovery on prepared signals ``s`` (:func:`discover` after :func:`build_signals`;
+    the streamed path, :mod:`cablesvc.discover.stream`, with its reduced signals). ``rec``
+    gives the pose for the equilibrium check; ``t_origin`` the creep clock's zero;
+    ``breaks`` (N,) bool marks the first tick after a gap (the noise floor is then taken
+    from differences inside the runs only)."""
     train, valid, test = split_blocks(s.t, block)
     s.train = train
     terms = library() if terms is None else terms
     selector = selector or ForwardSelector()
     r = s.y - s.f0
     loc = locate(s, r)
+    if breaks is not None:
+        from cablesvc.discover.stream import noise_within
+        fl = noise_within(r, breaks)
+        for d in loc["cables"]:
+            c = d["cable"]
+            d["noise"] = float(fl[c])
+            d["ratio"] = float(d["rms"] / fl[c]) if fl[c] > 0 else float("inf")
+            d["carries_residual"] = bool(d["rms"] > 1.3 * fl[c])
+        loc["flagged"] = [d["cable"] for d in loc["cables"] if d["carries_residual"]]
     noise = np.array([d["noise"] for d in loc["cables"]])
     if not exact_baseline:
-        return _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, train, valid, test, block)
+        return _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, train, valid, test, block,
+                                    t_origin)
     sel = selector.select(s, r, terms, train, valid, noise=noise)
 
     m = s.m
@@ -420,7 +447,7 @@ def discover(recording: Any, robot: Union[Robot, str, "os.PathLike[str]"],
                      masks={"train": train, "valid": valid, "test": test}, location=loc, selection=sel,
                      final=final, full=full, findings=findings, rmse_before=rmse_b, rmse_after=rmse_a,
                      noise=np.array([d["noise"] for d in loc["cables"]]),
-                     options={"block": block, "mode": "exact", "t_origin": float(rec.t[0])})
+                     options={"block": block, "mode": "exact", "t_origin": t_origin})
 
 
 #: family-wise error rate of the block-level tests (Holm over all tries)
@@ -458,7 +485,8 @@ def _spectrum_peak(e: np.ndarray, dt: float) -> float:
     return float(f[1 + int(np.argmax(P[1:]))]) if P.size > 1 else 0.0
 
 
-def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, train, valid, test, block) -> Discovery:
+def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, train, valid, test, block,
+                         t_origin) -> Discovery:
     from cablesvc.discover.equilibrium import equilibrium_check
     from cablesvc.discover.evidence import block_gain_test, block_ids, excess_test, holm, loo_errors
     from cablesvc.discover.locate import state_regions
@@ -611,5 +639,5 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                      masks={"train": train, "valid": valid, "test": test}, location=loc, selection=sel,
                      final=final, full=full, findings=findings, rmse_before=rmse_b, rmse_after=rmse_a,
                      noise=noise, options={"block": block, "mode": "identified", "alpha": ALPHA,
-                                           "t_origin": float(rec.t[0]), **sel_info},
+                                           "t_origin": t_origin, **sel_info},
                      recalibration=recal, unexplained=unexplained, equilibrium=eq)
