@@ -37,12 +37,14 @@ from __future__ import annotations
 import gc
 import json
 import time
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from cablesvc.alarms.drift import DriftConfig, DriftDetector
-from cablesvc.alarms.spread import SpreadConfig, SpreadDetector
+if TYPE_CHECKING:      # the detectors load numba: imported where the bench runs, so that
+    # building the CLI (every ``cablesvc`` command) does not pay for them
+    from cablesvc.alarms.drift import DriftConfig
+    from cablesvc.alarms.spread import SpreadConfig
 
 CHUNK_S = 60.0          # seconds of data generated at once
 SWING_N = 20.0          # force swing of the dead-time scenario [N]
@@ -146,6 +148,9 @@ def run_alarm_bench(seed: int = 0, hours: float = 1.0, *, n_seeds: int = 5, n_ca
     ``step``, ``ramp`` and ``noise`` summaries of drift and the ``spread`` summary.
     ``model_error_n`` > 0 adds a slowly varying zero-mean residual (std [N], correlation
     time ``model_error_tau_s`` [s]) to every run: a robustness check beyond white sensor noise."""
+    from cablesvc.alarms.drift import DriftConfig, DriftDetector
+    from cablesvc.alarms.spread import SpreadConfig, SpreadDetector
+
     cfg = config if config is not None else DriftConfig()
     scfg = spread_config if spread_config is not None else SpreadConfig()
     pre_s = max(cfg.warmup_s, scfg.warmup_s) + 60.0
@@ -264,6 +269,9 @@ def run_replay_bench(minutes: float = 30.0, *, robot: str = "ipanema3", rate_hz:
     fresh kernel, like its fresh truth model), the detectors running on across the chunks
     with the time continued. Short chunks keep the simulator's memory small (about 1 GB for
     30 s at 1 kHz). Returns a JSON-able dict."""
+    from cablesvc.alarms.drift import DriftConfig, DriftDetector
+    from cablesvc.alarms.spread import SpreadConfig, SpreadDetector
+
     from cablesvc.kernel import Predictor
     from cablesvc.simulate.physics import TruthConfig
     from cablesvc.simulate.twin import simulate_twin

@@ -48,18 +48,15 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
 from cablesvc.config import load_robot
-from cablesvc.config.params import ModelParams
-from cablesvc.identify.amplitude_fit import PER_LEVEL, fit_amplitude_model
-from cablesvc.identify.cable import amplitude_params, cable_data
-from cablesvc.identify.identifiability import sensitivity
-from cablesvc.kinematics import inverse_kinematics
-from cablesvc.models import AmplitudeDependent
-from cablesvc.models.amplitude import GRID_POINTS
+
+if TYPE_CHECKING:     # identification and the models load scipy and numba: imported where the
+    # bench runs, so that building the CLI (every ``cablesvc`` command) does not pay for them
+    from cablesvc.config.params import ModelParams
 
 __all__ = ["experiment_truth", "run_cable_experiment", "effective_values", "table1_sensitivity", "add_parser"]
 
@@ -77,6 +74,9 @@ DETERMINED_RSE = 0.01
 
 def experiment_truth(robot: str = "ipanema3", points: int = 57) -> ModelParams:
     """The truth amplitude model of the experiment (see module docstring)."""
+    from cablesvc.config.params import ModelParams
+    from cablesvc.kinematics import inverse_kinematics
+
     rob = load_robot(robot)
     geom = rob.geometry()
     L = inverse_kinematics(geom, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])).length[0]
@@ -101,6 +101,9 @@ def effective_values(params: ModelParams, n_cables: int, A: float) -> dict[str, 
     """Table values (per cable, (m,)) the kernel's amplitude model applies at amplitude
     ``A`` [m]: the tables are resampled on GRID_POINTS uniform amplitudes and read at the
     nearest point, clamped to the table range (see :class:`AmplitudeDependent`)."""
+    from cablesvc.identify.amplitude_fit import PER_LEVEL
+    from cablesvc.models.amplitude import GRID_POINTS
+
     grid = np.asarray(params.tables["amplitudes"], float)
     lo, hi = grid[0], grid[-1]
     if grid.size > 1:
@@ -126,6 +129,9 @@ def table1_sensitivity(params: ModelParams, n_cables: int, A: float, *, cable: i
     variation F - K0 [N] (the model's response to the excitation, without the constant
     pretension that no parameter of p_M acts on). Input I: one parameter, perturbed by
     +-``rel_step`` around its value; the perturbed sets are the lanes of one model run."""
+    from cablesvc.identify.identifiability import sensitivity
+    from cablesvc.models import AmplitudeDependent
+
     vals = effective_values(params, n_cables, A)
     p = np.array([vals[k][cable] for k in ("K1", "K2", "K3", "S_a", "alpha")])
     xc = float(np.broadcast_to(np.asarray(params.params["x_center"], float), (n_cables,))[cable])
@@ -159,6 +165,9 @@ def run_cable_experiment(robot: str = "ipanema3", *, seed: int = 0, rate: float 
                          held_out: float = HELD_OUT, cables: Sequence[int] | None = None,
                          progress: Any = None) -> dict[str, Any]:
     """Simulate the experiment, identify, score. Returns a JSON-able dict (see module docstring)."""
+    from cablesvc.identify.amplitude_fit import PER_LEVEL, fit_amplitude_model
+    from cablesvc.identify.cable import amplitude_params, cable_data
+
     from cablesvc.simulate import TruthConfig, simulate_recording
     t0 = time.perf_counter()
     rob = load_robot(robot)
@@ -289,6 +298,8 @@ def run_cable_experiment(robot: str = "ipanema3", *, seed: int = 0, rate: float 
 
 
 def _print_human(res: dict[str, Any]) -> None:
+    from cablesvc.identify.amplitude_fit import PER_LEVEL
+
     from rich.console import Console
     from rich.table import Table
     con = Console()

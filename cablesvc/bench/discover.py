@@ -50,12 +50,13 @@ import math
 import sys
 import time
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import TYPE_CHECKING, Any, Optional
 
 import numpy as np
 
-from cablesvc.simulate import EFFECTS, TruthConfig, simulate_twin
-from cablesvc.simulate.physics import Effect
+if TYPE_CHECKING:      # the twin loads the models (numba): imported where the bench runs, so
+    # that building the CLI (every ``cablesvc`` command) does not pay for it
+    from cablesvc.simulate.physics import Effect
 
 __all__ = ["run_bench", "run_realistic", "make_case", "add_parser", "main", "NOISE", "ROBOT", "SCENARIO"]
 
@@ -88,6 +89,8 @@ def _strip_truth(rec):
 
 
 def _effect_rms(eff: Effect, seed: int, base: np.ndarray) -> float:
+    from cablesvc.simulate import TruthConfig, simulate_twin
+
     run = simulate_twin(ROBOT, SCENARIO, truth=TruthConfig(effects=[eff], noise_std=0.0), duration=DURATION,
                         rate=RATE, seed=seed)
     d = run.output.measured - base
@@ -98,6 +101,8 @@ def _effect_rms(eff: Effect, seed: int, base: np.ndarray) -> float:
 def make_case(kind: str, names: list[str], seed: int, rng: np.random.Generator, m: int = 8) -> Case:
     """Simulate one case (see the module docstring); returns it with the truth stripped
     from the recording handed to discovery."""
+    from cablesvc.simulate import EFFECTS, TruthConfig, simulate_twin
+
     base = None if not names else simulate_twin(ROBOT, SCENARIO, truth=TruthConfig(noise_std=0.0),
                                                 duration=DURATION, rate=RATE, seed=seed).output.measured
     effects, rms = [], {}
@@ -125,6 +130,8 @@ def make_case(kind: str, names: list[str], seed: int, rng: np.random.Generator, 
 
 
 def _plan(cases: int, rng: np.random.Generator) -> list[tuple[str, list[str]]]:
+    from cablesvc.simulate.physics import EFFECTS
+
     names = list(EFFECTS)
     plan = [("single", [names[i % len(names)]]) for i in range(cases)]
     pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]]
@@ -137,6 +144,8 @@ def _plan(cases: int, rng: np.random.Generator) -> list[tuple[str, list[str]]]:
 
 def run_bench(cases: int = 40, seed: int = 0, progress: Optional[Any] = None) -> dict[str, Any]:
     """Run the benchmark: ``cases`` single-effect cases, half as many pairs and controls."""
+    from cablesvc.simulate.physics import EFFECTS
+
     from cablesvc.discover import discover
     t0 = time.perf_counter()
     rng = np.random.default_rng([seed, 6])
@@ -312,6 +321,8 @@ def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Opti
 
 
 def format_confusion(res: dict[str, Any]) -> str:
+    from cablesvc.simulate.physics import EFFECTS
+
     cols = list(EFFECTS) + ["nothing"]
     extra = sorted({k for row in res["confusion"].values() for k in row} - set(cols))
     cols += extra

@@ -22,7 +22,6 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy.optimize import LinearConstraint, NonlinearConstraint, least_squares, minimize
-from scipy.stats import qmc
 
 from cablesvc.identify.identifiability import jacobian_statistics
 from cablesvc.identify.pso import as_bounds
@@ -217,6 +216,8 @@ def multistart_sqp(fun: Callable[[np.ndarray], float], bounds: Any, *, constrain
         raise ValueError(f"names: {len(names)} names for {n} parameters")
     if method not in ("SLSQP", "trust-constr"):
         raise ValueError(f"method must be 'SLSQP' or 'trust-constr', got {method!r}")
+    from scipy.stats import qmc       # scipy.stats costs half a second: only where it is used
+
     sampler = qmc.LatinHypercube(d=n, seed=seed)
     X0 = qmc.scale(sampler.random(int(starts)), lb, ub) if n else np.zeros((int(starts), 0))
     cons = list(constraints)
