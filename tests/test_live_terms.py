@@ -238,3 +238,60 @@ def test_reload_hand_over_between_files_with_other_terms(robot):
     assert np.all(np.isfinite(more))
     p_back = Predictor(robot.geometry(), plain)
     assert _hand_over(p_new, p_back) == "kept (same model family)"
+
+
+def test_reload_into_terms_takes_the_rates_of_the_last_tick(robot):
+    """A reload from a file without terms into one with a pulley term: the first tick after
+    the hand-over uses the real sliding speed over the pulley (the previous tick's motor
+    length comes with the state), so it equals a kernel that ran the terms from the start
+    (the pulley term has no other memory). Without it the friction is 0 for one tick."""
+    from cablesvc.service.daemon import _hand_over
+    rec = _recording("pulley:0.004@1,4")
+    d = _discovery(rec, robot, ["pulley"])
+    plain, with_terms = d.baseline, d.augmented_params()
+    assert max(abs(v) for v in with_terms.identification["term_pulley"]["mu"]) > 0
+    _, p_old = _kernel_forces(rec, robot, plain, 0, 300)
+    p_new = Predictor(robot.geometry(), with_terms)
+    _hand_over(p_old, p_new)
+    after, _ = _kernel_forces(rec, robot, with_terms, 300, 310, pred=p_new)
+    ref, _ = _kernel_forces(rec, robot, with_terms, 0, 310)
+    np.testing.assert_allclose(after, ref[300:], rtol=1e-12, atol=1e-9)
+
+
+def test_creep_fitted_after_it_began_keeps_what_had_crept():
+    """Creep analysed from a time after it began (``discover --since`` after an alarm): the
+    creep already there is the term's d0, and the settling time comes out of the scalar
+    search between grid points, so the fitted law continues the truth past the data."""
+    from cablesvc.models.terms import Creep, Signals
+    rng = np.random.default_rng(3)
+    n, m = 9000, 1
+    t = np.arange(n) * 0.01 + 40.0
+    z = np.zeros((n, m))
+    s = Signals(t=t, dt=0.01, y=z.copy(), f0=z + 200.0, x=z + 0.01, v=z.copy(), v_slide=z.copy(), wrap=z.copy(),
+                free_length=z + 2.0, temperature=None, amplitude=z.copy(), ea=np.array([30000.0]),
+                has_pulley=np.array([False]), train=np.ones(n, bool))
+    k = 30000.0 / 2.0
+    truth = dict(d0=2e-5, a=5e-5, b=1e-7, tau=23.0)
+    tr = t - t[0]
+    r = -k * (truth["d0"] + truth["a"] * (1 - np.exp(-tr / truth["tau"])) + truth["b"] * tr)
+    fit = fit_terms(s, 0, r + rng.normal(0, 0.02, n), [Creep()], np.ones(n, bool))
+    assert fit.hyper["creep"]["tau"] == pytest.approx(truth["tau"], rel=0.1)
+    for p in ("d0", "a"):
+        assert fit.params["creep"][p] == pytest.approx(truth[p], rel=0.1)
+    t2 = np.arange(0.0, 200.0, 1.0)
+    law = lambda P, h: -k * (P["d0"] + P["a"] * (1 - np.exp(-t2 / h)) + P["b"] * t2)
+    assert np.max(np.abs(law(fit.params["creep"], fit.hyper["creep"]["tau"]) - law(truth, truth["tau"]))) < 0.1
+
+
+def test_onset_of_a_clocked_effect_starts_its_clock():
+    """The live-discovery bench fades effects in at the onset; creep (``clocked``) starts
+    creeping there instead of jumping to the creep it would have accumulated since the
+    start."""
+    from cablesvc.bench.live_discovery import make_onset_recording
+    on, cables = make_onset_recording("creep:1.5@2", half=20.0, onset=10.0, ramp=1.0, seed=3)
+    off, _ = make_onset_recording("creep:0@2", half=20.0, onset=10.0, ramp=1.0, seed=3)
+    d = (on.force - off.force)[:, 2]
+    t = on.t - on.t[0]
+    assert np.all(d[t < 10.0] == 0.0)
+    early, end = abs(d[np.searchsorted(t, 11.0)]), abs(d[-1])
+    assert end > 1.0 and early < 0.25 * end

@@ -11,8 +11,9 @@ user would:
    (replay source at full speed, a real Zenoh peer on 127.0.0.1, the baseline parameters):
    ``rmse_live_before`` is the live residual RMS on the affected cables after the ramp,
    ``drift_alarm_before`` whether ``drift`` or ``spread`` was raised on an affected cable;
-2. ``cablesvc discover --since ONSET`` runs on the first half (the baseline over all of
-   it, the analysis on the ticks since the onset, what a user selects after the alarm): ``rmse_discover_heldout`` is its held-out (test-block) RMS
+2. ``cablesvc discover --since T`` runs on the first half, T the time of the first alarm
+   on an affected cable (the baseline over all of it, the analysis on the ticks since the
+   alarm, what an alarmed user selects; the onset when no alarm came, ``discover_since``): ``rmse_discover_heldout`` is its held-out (test-block) RMS
    on the affected cables after the terms, ``named`` the terms it found;
 3. the daemon takes the augmented parameter file without a restart (the reload of
    ``cablesvc run``: SIGHUP or a put on ``cablesvc/<robot>/params``) and the second half is
@@ -53,16 +54,29 @@ EFFECTS = {
 
 def with_onset(eff, onset: float, ramp: float):
     """``eff`` acting from ``onset`` s on (twin time), faded in over ``ramp`` s: a copy of the
-    effect whose step blends the value without it and with it (the effect's own state runs
-    from the start, so a creep or a dead time is the same physics, only switched in)."""
+    effect whose step blends the value without it and with it. The effect's own state runs
+    from the start (a dead time or a Bouc-Wen loop is the same physics, only switched in);
+    an effect whose law is a clock since it began (``clocked``: creep) starts that clock at
+    the onset, as a cable that starts to creep does, instead of stepping to the creep it
+    would have accumulated since the recording's start."""
     import copy
 
     base_cls = type(eff)
 
+    class _Shifted:                      # the tick as a clocked effect sees it
+        __slots__ = ("_tick",)
+
+        def __init__(self, tick):
+            self._tick = tick
+
+        def __getattr__(self, k):
+            v = getattr(self._tick, k)
+            return max(float(v) - onset, 0.0) if k == "t" else v
+
     class Onset(base_cls):
         def step(self, tick, value):
             before = value.copy()
-            base_cls.step(self, tick, value)
+            base_cls.step(self, _Shifted(tick) if base_cls.clocked else tick, value)
             w = min(max((float(tick.t) - onset) / ramp, 0.0), 1.0)
             value[...] = before + w * (value - before)
 
@@ -121,6 +135,15 @@ def _raised(alarms: list[dict], cables: list[int], t0: float, t_from: float, t_t
     return False
 
 
+def _first_raise(alarms: list[dict], cables: list[int], t0: float, t_from: float) -> Optional[float]:
+    """Time [s after the start] of the first drift or spread raise on one of ``cables`` at
+    or after ``t_from`` s, None without one."""
+    ts = [float(a["since"] if a.get("since") is not None else a["t"]) - t0 for a in alarms
+          if a.get("code") in ("drift", "spread") and a.get("action") == "raise" and a.get("cable") in cables
+          and float(a.get("t", math.nan)) - t0 >= t_from]
+    return min(ts) if ts else None
+
+
 def run_effect(name: str, *, half: float = 180.0, onset: float = 75.0, ramp: float = 5.0, seed: int = 0,
                workdir: Optional[Path] = None) -> dict[str, Any]:
     """One effect's row (see the module docstring)."""
@@ -150,9 +173,12 @@ def run_effect(name: str, *, half: float = 180.0, onset: float = 75.0, ramp: flo
     reload: dict[str, Any] = {}
     try:
         d.run(threading.Event(), max_ticks=n_half)
-        # discovery on the first half, analysing the ticks since the onset (``--since``: what a
-        # user selects after the alarm); the baseline runs from the start, as the daemon's did
-        disc = discover(rec.slice(0, n_half), robot, base, exact_baseline=True, since=onset)
+        # discovery on the first half, analysing the ticks since the first alarm on an
+        # affected cable (``--since``: what a user who was alarmed selects; the onset itself
+        # is the bench's secret); the baseline runs from the start, as the daemon's did
+        since = _first_raise(alarms, list(cables), t0, onset)
+        disc = discover(rec.slice(0, n_half), robot, base, exact_baseline=True,
+                        since=onset if since is None else since)
         reload = d.reload_params(disc.augmented_params().to_toml(), origin="bench live-discovery", timeout=0.05)
         d.run(threading.Event())
     finally:
@@ -176,6 +202,7 @@ def run_effect(name: str, *, half: float = 180.0, onset: float = 75.0, ramp: flo
     t_half = float(rec.t[n_half] - t0)
     heldout = float(np.sqrt(np.mean(disc.rmse_after[cs] ** 2)))
     return {"effect": name, "spec": EFFECTS[name], "cables": cs, "named": disc.named,
+            "discover_since": onset if since is None else since,
             "rmse_live_before": rms(before), "rmse_live_after": rms(after), "rmse_discover_heldout": heldout,
             "rmse_discover_heldout_before": float(np.sqrt(np.mean(disc.rmse_before[cs] ** 2))),
             "drift_alarm_before": _raised(alarms, cs, t0, onset, t_half),

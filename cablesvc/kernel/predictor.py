@@ -166,6 +166,8 @@ class Predictor:
         d["pose.position"] = self._pos.copy()
         d["pose.orientation"] = self._quat.copy()
         d["t_prev"] = np.array([self._t_prev])
+        d["last.elongation"] = self._x.copy()
+        d["last.motor_length"] = self._ml.copy()
         if self.terms is not None:
             d.update({f"terms.{k}": v for k, v in self.terms.state_dict().items()})
         return d
@@ -180,6 +182,8 @@ class Predictor:
         self._amp_src = self._amplitude_view()
         if self.terms is not None:
             self.terms.load_state_dict({k[6:]: v for k, v in d.items() if k.startswith("terms.")})
+            if "last.motor_length" in d:   # a kernel without these terms before: their rates start right
+                self.terms.prime(self._t_prev, d["last.elongation"], d["last.motor_length"])
 
     def _amplitude_view(self) -> np.ndarray | None:
         a = self.model.amplitude(self.state)

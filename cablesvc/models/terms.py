@@ -411,33 +411,43 @@ class Creep(Term):
     """Creep and settling (002 Fig 6: the force drifts away from the identified model over
     time). The unstretched length grows by a settling part and a steady creep,
 
-        delta_l(t) = a (1 - exp(-t / tau)) + b t,        delta_f = -k delta_l(t)
+        delta_l(t) = d0 + a (1 - exp(-t / tau)) + b t,        delta_f = -k delta_l(t)
 
     with k = EA / L the nominal stiffness at the mean free length. a [m] >= 0, b [m/s] >= 0,
-    tau [s] on a grid of fractions of the recording. t is the time since the recording's
-    start offline, and since the creep clock's start live (the first tick the daemon saw
-    with these parameters, kept in its snapshot across restarts)."""
+    tau [s] on a grid of fractions of the analysed span, then refined by a bounded scalar
+    search. t is the time since the analysis' start offline (the recording's start, or
+    ``discover --since``), and since the creep clock's start live (``terms_clock_origin``
+    of the file, kept in the daemon's snapshot across restarts). d0 [m] is the creep the
+    cable already had when the clock started (a cable found creeping after an alarm has
+    crept since before it): a constant, so it is a nuisance column, held at 0 where the
+    sensor offset (``offset_gain``) already carries the constant, and the creep term must
+    explain more than it alone."""
 
     name = "creep"
     label = "creep and settling drift"
-    equation = "-k (a (1 - exp(-t/tau)) + b t), k = EA/L  (002 Fig 6)"
+    equation = "-k (d0 + a (1 - exp(-t/tau)) + b t), k = EA/L  (002 Fig 6)"
     variable = "time since start [s]"
-    params = ("a", "b")
-    units = ("m", "m/s")
-    lower = (0.0, 0.0)
+    params = ("a", "b", "d0")
+    units = ("m", "m/s", "m")
+    lower = (0.0, 0.0, -np.inf)
+    nuisance = ("d0",)
     hypers = ("tau",)
     ref_names = ("k",)
     n_hyper = 1
+    refine_hyper = "tau"
+    refine_bounds = (0.1, 1e6)
 
     def grid(self, s):
         T = float(s.t[-1] - s.t[0]) or 1.0
-        return [{"tau": fr * T} for fr in (0.03, 0.1, 0.25, 0.6)]
+        return [{"tau": fr * T} for fr in (0.03, 0.1, 0.25, 0.5, 1.0, 2.0)]
 
     def refs(self, s, c, h):
         return {"k": float(s.ea[c] / s.train_mean(s.free_length[:, c]))}
 
     def columns(self, g, R, h, out):
-        o0, o1 = out
+        o0, o1, o2 = out
+        np.copyto(o2, R["k"])
+        np.negative(o2, out=o2)                        # -k (the creep before the clock's start)
         np.divide(g.t, h["tau"], out=o0)
         np.negative(o0, out=o0)
         np.exp(o0, out=o0)
@@ -1168,6 +1178,18 @@ class TermStack:
         tables = {n: dict(identification.get(f"term_{n}", {})) for n in names}
         origin = identification.get("terms_clock_origin")
         return cls(terms, tables, m, lanes, max_rate_hz, None if origin is None else float(origin))
+
+    def prime(self, t: float, x: np.ndarray, motor_length: np.ndarray) -> None:
+        """Start a stack that has seen no tick from the previous tick's time, elongation and
+        motor length (a reload mid-run: the kernel before it ran without these terms), so
+        that the first tick's dx/dt and sliding speed are the real ones, not 0. No effect on
+        a stack that has run."""
+        if self.t0 is not None:
+            return
+        self.t0 = float(t) if self.origin is None else self.origin
+        self.t_prev = float(t)
+        self.x_prev[...] = x
+        self.ml_prev[...] = motor_length
 
     def step(self, t: float, f0: np.ndarray, x: np.ndarray, motor_length: np.ndarray, wrap: np.ndarray,
              free_length: np.ndarray, temperature: Optional[float]) -> np.ndarray:

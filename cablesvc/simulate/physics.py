@@ -257,6 +257,10 @@ class Effect:
     unit: ClassVar[str] = ""
     default_magnitude: ClassVar[float] = 0.0
     summary: ClassVar[str] = ""
+    #: True when the law is a function of the time since the effect began (creep): an
+    #: effect that sets in later starts its clock then, instead of jumping to where it
+    #: would have been had it acted from the start
+    clocked: ClassVar[bool] = False
 
     magnitude: Optional[float] = None
     cables: Optional[tuple[int, ...]] = None
@@ -400,6 +404,7 @@ class Creep(Effect):
 
     name: ClassVar[str] = "creep"
     stage: ClassVar[str] = "force"
+    clocked: ClassVar[bool] = True
     unit: ClassVar[str] = "N"
     default_magnitude: ClassVar[float] = 2.0
     summary: ClassVar[str] = "settling + creep lengthen the cable; magnitude = force drop at the end [N]"
