@@ -16,7 +16,11 @@ the cable's state does not change):
    depend on the tick rate.
 2. **Mean** mu: EWMA of r with ``mean_tau_s``; z = r - mu (mu before this sample).
    Changes slower than ``mean_tau_s`` are the mean's (``drift``'s business), faster ones
-   are spread.
+   are spread. While the statistics are younger than ``mean_tau_s`` (a start, a reset after
+   new parameters) the gain is the running average's when larger, dt / age: a first sample
+   far off (the tick of a parameter switch) is then one sample among many instead of the
+   mean's value for ``mean_tau_s`` seconds, which widened the spread until after the
+   warm-up and raised a false alarm.
 3. **Spread** s^2: EWMA of z^2 with ``tau_s``.
 4. **Noise floor** q: EWMA of (r - r_prev)^2 / 2 with ``tau_s``, over consecutive
    samples at most ``max_dt_s`` apart: the live form of the offline floor
@@ -125,7 +129,13 @@ def _spread_sample(S, P, t, r, i, E, ne, row):
     gap = t - t_last
     dt = _sample_dt(t, t_last, P[_P_MAX_DT])
     z = r - S[_MEAN, i]
-    S[_MEAN, i] += _ewma_gain(dt, P[_P_MEAN_TAU]) * z
+    # the mean's gain: the EWMA's, or while the statistics are younger than its time
+    # constant the running average's (so one odd first sample weighs 1/n, not 1 - n dt/tau)
+    gm = _ewma_gain(dt, P[_P_MEAN_TAU])
+    age = t - S[_W_T0, i] + dt
+    if age > 0.0 and dt / age > gm:
+        gm = dt / age
+    S[_MEAN, i] += gm * z
     g = _ewma_gain(dt, P[_P_TAU])
     S[_VAR, i] += g * (z * z - S[_VAR, i])
     if gap <= P[_P_MAX_DT]:                      # consecutive samples: their difference is noise
