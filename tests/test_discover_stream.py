@@ -131,3 +131,15 @@ def test_reduced_recording_for_identify_is_the_block_means(tmp_path):
     np.testing.assert_allclose(red.force, rec.force.reshape(300, 10, 8).mean(axis=1), rtol=0, atol=1e-12)
     np.testing.assert_allclose(red.motor_length, rec.motor_length.reshape(300, 10, 8).mean(axis=1), rtol=0, atol=1e-12)
     np.testing.assert_allclose(red.t, rec.t.reshape(300, 10).mean(axis=1) - rec.t[0], rtol=0, atol=1e-12)
+
+
+def test_bench_discover_scale_small(tmp_path):
+    """The bench end to end on one small size: the recording made chunk by chunk, the
+    discover child timed with its own peak RSS, the named terms per size."""
+    from cablesvc.bench.discover_scale import run_discover_scale
+    res = run_discover_scale([0.2], effect="pulley:0.004@1,4", directory=str(tmp_path))
+    (row,) = res["rows"]
+    assert row["ticks"] == 12_000 and row["analysis_ticks"] == 1200 and row["generate_seconds"] > 0
+    assert row["named"] == ["pulley"] and row["cables"] == {"pulley": [1, 4]}
+    assert 0 < row["seconds"] and 50 < row["peak_rss_mb"] < 2048
+    assert res["same_terms_at_every_size"]
