@@ -34,8 +34,8 @@ reconstruction to band-limited (no new physics) removes it. If so it names
 
 Discovery never reads truth.json. The identification's fixed integrator is the one of
 :mod:`cablesvc.identify.oscillator`; models with a cubic, Coulomb or quadratic-damping
-term run :func:`simulate_general` (the same Newmark / trapezoidal scheme with those forces
-added; with them at zero it reproduces :func:`cablesvc.identify.oscillator.simulate_fine`).
+term run :func:`simulate_general`, the same integrator with those forces switched on
+(:func:`cablesvc.identify.oscillator.integrate_lanes`).
 """
 
 from __future__ import annotations
@@ -45,11 +45,10 @@ import time
 from dataclasses import dataclass
 from typing import Any, Optional
 
-import numba
 import numpy as np
 from scipy.optimize import least_squares
 
-from cablesvc.identify.oscillator import FS, UPSAMPLE, _bw_terms, bandlimited_upsample, decimate, simulate_fine
+from cablesvc.identify.oscillator import FS, UPSAMPLE, bandlimited_upsample, decimate, integrate_lanes, simulate_fine
 
 __all__ = ["OSC_TERMS", "OscModel", "simulate_general", "simulate_model", "run_boucwen_discovery",
            "boucwen_summary"]
@@ -75,83 +74,12 @@ P_UNITS = {"mL": "kg", "cL": "N s/m", "kL": "N/m", "alpha": "N/m", "beta_gamma":
 
 # ---- the general integrator -----------------------------------------------------------
 
-@numba.njit(cache=True)
-def _general_lane(u, h, p, out_y):
-    """One lane of :func:`simulate_general`: the integrator of
-    :func:`cablesvc.identify.oscillator.simulate_fine` (same Bouc-Wen law, ``_bw_terms``) plus
-    the extra restoring forces of the candidate terms, without sensitivities."""
-    m, c, k, A, B, D, nu = p[0], p[1], p[2], p[3], p[4], p[5], p[6]
-    k3, c2, fc, vs = p[7], p[8], p[9], p[10]
-    n = u.size
-    hh = h * h
-    y = 0.0
-    v = 0.0
-    z = 0.0
-
-    def fnl(y, v):
-        t = math.tanh(v / vs) if fc != 0.0 else 0.0
-        f = k3 * y * y * y + c2 * v * abs(v) + fc * t
-        fy = 3.0 * k3 * y * y
-        fv = 2.0 * c2 * abs(v) + (fc / vs * (1.0 - t * t) if fc != 0.0 else 0.0)
-        return f, fy, fv
-
-    f0, _, _ = fnl(y, v)
-    a = (u[0] - c * v - k * y - z - f0) / m
-    g = _bw_terms(A, B, D, nu, v, z)[0]
-    out_y[0] = y
-    for i in range(1, n):
-        ui = u[i]
-        y1 = y + h * v + 0.5 * hh * a
-        z1 = z + h * g
-        conv = False
-        for it in range(60):
-            v1 = 2.0 / h * (y1 - y) - v
-            a1 = 4.0 / hh * (y1 - y) - 4.0 / h * v - a
-            g1, gv1, gz1, _ = _bw_terms(A, B, D, nu, v1, z1)
-            f1, fy1, fv1 = fnl(y1, v1)
-            r1 = m * a1 + c * v1 + k * y1 + z1 + f1 - ui
-            r2 = z1 - z - 0.5 * h * (g + g1)
-            j11 = 4.0 * m / hh + 2.0 * c / h + k + fy1 + 2.0 / h * fv1
-            j21 = -gv1
-            j22 = 1.0 - 0.5 * h * gz1
-            det = j11 * j22 - j21
-            dy = (r1 * j22 - r2) / det
-            dz = (j11 * r2 - j21 * r1) / det
-            y1 -= dy
-            z1 -= dz
-            if not (abs(y1) < 1e3):
-                break
-            if abs(dy) <= 1e-13 * (abs(y1) + abs(y)) + 1e-300 and abs(dz) <= 1e-13 * (abs(z1) + abs(z)) + 1e-300:
-                conv = True
-                break
-        if not conv and not (abs(y1) < 1e3):
-            for q in range(i, n):
-                out_y[q] = np.nan
-            return i
-        v1 = 2.0 / h * (y1 - y) - v
-        a1 = 4.0 / hh * (y1 - y) - 4.0 / h * v - a
-        g1 = _bw_terms(A, B, D, nu, v1, z1)[0]
-        y, v, a, z, g = y1, v1, a1, z1, g1
-        out_y[i] = y
-    return 0
-
-
-@numba.njit(cache=True, parallel=True)
-def _general_lanes(u, h, P, out_y, status):
-    for lane in numba.prange(P.shape[0]):
-        status[lane] = _general_lane(u, h, P[lane], out_y[lane])
-
-
 def simulate_general(u_fine: np.ndarray, h: float, P: np.ndarray):
     """Newmark (1/4, 1/2) + trapezoidal z from rest with the extra restoring forces
-    ``k3 y^3 + c2 v|v| + Fc tanh(v / v_s)``; ``P`` (lanes, 11) in :data:`P_NAMES` order.
-    Returns ``(y (lanes, n), ok (lanes,))``."""
-    P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
-    u = np.ascontiguousarray(u_fine, dtype=np.float64)
-    out = np.empty((P.shape[0], u.size))
-    st = np.zeros(P.shape[0], dtype=np.int64)
-    _general_lanes(u, float(h), P, out, st)
-    return out, st == 0
+    ``k3 y^3 + c2 v|v| + Fc tanh(v / v_s)``; ``P`` (lanes, 11) in :data:`P_NAMES` order: the
+    benchmark's integrator (:func:`cablesvc.identify.oscillator.integrate_lanes`, one law and
+    one scheme for identification and discovery). Returns ``(y (lanes, n), ok (lanes,))``."""
+    return integrate_lanes(u_fine, h, P)
 
 
 def reconstruct(u: np.ndarray, r: int, hold: bool, periodic: bool) -> np.ndarray:

@@ -38,6 +38,7 @@ pass when asked for (exact derivatives of the discrete simulator, for least squa
 from __future__ import annotations
 
 import math
+from typing import Optional
 
 import numba
 import numpy as np
@@ -71,6 +72,26 @@ def as_theta(params) -> np.ndarray:
     if th.shape[-1] != len(PARAM_NAMES) or th.ndim != 2:
         raise ValueError(f"theta must be (lanes, {len(PARAM_NAMES)}), got {th.shape}")
     return np.ascontiguousarray(th)
+
+
+def with_extras(theta: np.ndarray, extras: Optional[np.ndarray] = None) -> np.ndarray:
+    """``(lanes, 11)``: the ``(lanes, 7)`` parameters followed by :data:`EXTRA_NAMES`
+    (``extras`` (lanes, 4); None: no extra force, v_s = 1)."""
+    th = np.atleast_2d(np.asarray(theta, dtype=np.float64))
+    ex = np.tile([0.0, 0.0, 0.0, 1.0], (th.shape[0], 1)) if extras is None else np.atleast_2d(extras)
+    return np.ascontiguousarray(np.concatenate([th, ex], axis=1), dtype=np.float64)
+
+
+def integrate_lanes(u_fine: np.ndarray, h: float, P: np.ndarray, *, ycap: float = 1e3):
+    """The lanes ``P`` (lanes, 11) (:func:`with_extras`) from rest, without sensitivities:
+    ``(y (lanes, n) [m], ok (lanes,))``. The one integrator of the oscillator, with or
+    without the extra restoring forces."""
+    P = np.ascontiguousarray(np.atleast_2d(P), dtype=np.float64)
+    u = np.ascontiguousarray(u_fine, dtype=np.float64)
+    out_y = np.empty((P.shape[0], u.size))
+    status = np.zeros(P.shape[0], dtype=np.int64)
+    _run_lanes(u, float(h), P, 0.0, 0.0, 0.0, float(ycap), out_y, np.empty((1, 7, 1)), False, status)
+    return out_y, status == 0
 
 
 # ---- input reconstruction --------------------------------------------------------------
@@ -194,34 +215,57 @@ def _bw_terms(A, B, D, nu, v, z):
     return g, gv, gz, p
 
 
+#: extra restoring forces beyond the benchmark's equation, after the 7 parameters of
+#: :data:`PARAM_NAMES` in a lane's parameter vector: k3 y^3 [N/m^3], c2 v|v| [N s^2/m^2],
+#: Fc tanh(v / v_s) [N], [m/s] (``cablesvc.discover.oscillator_case`` fits them; 0 = the
+#: benchmark's model)
+EXTRA_NAMES = ("k3", "c2", "Fc", "v_s")
+
+
 @numba.njit(cache=True, inline="always")
-def _trial(m, c, k, A, B, D, nu, h, hh, y, v, a, z, g, ui, y1, z1):
+def _extra_force(y, v, k3, c2, fc, vs):
+    """f = k3 y^3 + c2 v|v| + Fc tanh(v / v_s) [N] and its derivatives df/dy, df/dv."""
+    t = math.tanh(v / vs) if fc != 0.0 else 0.0
+    f = k3 * y * y * y + c2 * v * abs(v) + fc * t
+    fy = 3.0 * k3 * y * y
+    fv = 2.0 * c2 * abs(v) + (fc / vs * (1.0 - t * t) if fc != 0.0 else 0.0)
+    return f, fy, fv
+
+
+@numba.njit(cache=True, inline="always")
+def _trial(m, c, k, A, B, D, nu, k3, c2, fc, vs, h, hh, y, v, a, z, g, ui, y1, z1):
     """At the trial end-of-step state (y1, z1): the Newmark (1/4, 1/2) velocity v1 and
-    acceleration a1, the Bouc-Wen terms g1, dg/dv, dg/dz, |z|^(nu-1) there, and the residuals
-    of the equation of motion (r1) and of the trapezoidal z update (r2)."""
+    acceleration a1, the Bouc-Wen terms g1, dg/dv, dg/dz, |z|^(nu-1) there, the extra force's
+    derivatives df/dy, df/dv, and the residuals of the equation of motion (r1) and of the
+    trapezoidal z update (r2)."""
     v1 = 2.0 / h * (y1 - y) - v
     a1 = 4.0 / hh * (y1 - y) - 4.0 / h * v - a
     g1, gv1, gz1, p1 = _bw_terms(A, B, D, nu, v1, z1)
-    r1 = m * a1 + c * v1 + k * y1 + z1 - ui
+    f1, fy1, fv1 = _extra_force(y1, v1, k3, c2, fc, vs)
+    r1 = m * a1 + c * v1 + k * y1 + z1 + f1 - ui
     r2 = z1 - z - 0.5 * h * (g + g1)
-    return v1, a1, g1, gv1, gz1, p1, r1, r2
+    return v1, a1, g1, gv1, gz1, p1, fy1, fv1, r1, r2
 
 
 @numba.njit(cache=True)
 def _run_lane(u, h, th, y0, v0, z0, ycap, out_y, out_s, sens):
     """One lane: Newmark (1/4, 1/2) for y, trapezoidal rule for z, Newton on (y, z).
 
-    Writes y at every step into out_y (n,) and, when sens, dy/dtheta into out_s (7, n).
-    Returns 0 on success, the (1-based) step index where the lane failed otherwise (the
-    rest of out_y is then NaN)."""
+    ``th`` (11,): the 7 parameters of :data:`PARAM_NAMES`, then :data:`EXTRA_NAMES` (0:
+    the benchmark's model, whose floating-point results the extra terms then leave as they
+    were). Writes y at every step into out_y (n,) and, when sens, dy/dtheta (the 7) into
+    out_s (7, n). Returns 0 on success, the (1-based) step index where the lane failed
+    otherwise (the rest of out_y is then NaN)."""
     m, c, k, A, B, D, nu = th[0], th[1], th[2], th[3], th[4], th[5], th[6]
+    k3, c2, fc, vs = th[7], th[8], th[9], th[10]
     n = u.size
     hh = h * h
     keff = 4.0 * m / hh + 2.0 * c / h + k
     y = y0
     v = v0
     z = z0
-    a = (u[0] - c * v - k * y - z) / m
+    f0 = _extra_force(y, v, k3, c2, fc, vs)[0]
+    a = (u[0] - c * v - k * y - z - f0) / m
     g, gv, gz, p = _bw_terms(A, B, D, nu, v, z)
     out_y[0] = y
     # sensitivities of the state (y, v, a, z, g) to the 7 parameters
@@ -251,12 +295,14 @@ def _run_lane(u, h, th, y0, v0, z0, ycap, out_y, out_s, sens):
         z1 = z + h * g
         conv = False
         for it in range(40):
-            v1, a1, g1, gv1, gz1, p1, r1, r2 = _trial(m, c, k, A, B, D, nu, h, hh, y, v, a, z, g, ui, y1, z1)
+            v1, a1, g1, gv1, gz1, p1, fy1, fv1, r1, r2 = _trial(m, c, k, A, B, D, nu, k3, c2, fc, vs, h, hh, y, v,
+                                                                a, z, g, ui, y1, z1)
+            j11 = keff + fy1 + 2.0 / h * fv1
             j21 = -gv1                 # d r2 / d y1 = -h/2 * gv * 2/h
             j22 = 1.0 - 0.5 * h * gz1
-            det = keff * j22 - j21
+            det = j11 * j22 - j21
             dy = (r1 * j22 - r2) / det
-            dz = (keff * r2 - j21 * r1) / det
+            dz = (j11 * r2 - j21 * r1) / det
             y1 -= dy
             z1 -= dz
             if not (abs(y1) < ycap):
@@ -266,16 +312,19 @@ def _run_lane(u, h, th, y0, v0, z0, ycap, out_y, out_s, sens):
                 break
         if not conv:
             # accept a stalled iteration only if the residuals are at rounding level
-            v1, a1, g1, gv1, gz1, p1, r1, r2 = _trial(m, c, k, A, B, D, nu, h, hh, y, v, a, z, g, ui, y1, z1)
+            v1, a1, g1, gv1, gz1, p1, fy1, fv1, r1, r2 = _trial(m, c, k, A, B, D, nu, k3, c2, fc, vs, h, hh, y, v,
+                                                                a, z, g, ui, y1, z1)
             scale_f = abs(ui) + abs(k * y1) + abs(z1) + 1e-12
             if not (abs(y1) < ycap and abs(r1) <= 1e-9 * scale_f and abs(r2) <= 1e-9 * (abs(z1) + abs(z) + 1e-12)):
                 for q in range(i, n):
                     out_y[q] = np.nan
                 return i
-        v1, a1, g1, gv1, gz1, p1, r1, r2 = _trial(m, c, k, A, B, D, nu, h, hh, y, v, a, z, g, ui, y1, z1)
+        v1, a1, g1, gv1, gz1, p1, fy1, fv1, r1, r2 = _trial(m, c, k, A, B, D, nu, k3, c2, fc, vs, h, hh, y, v, a,
+                                                            z, g, ui, y1, z1)
         if sens:
+            j11 = keff + fy1 + 2.0 / h * fv1
             j22 = 1.0 - 0.5 * h * gz1
-            det = keff * j22 + gv1
+            det = j11 * j22 + gv1
             az1 = abs(z1)
             lnz = math.log(az1) if az1 > 0.0 else 0.0
             for j in range(7):
@@ -292,8 +341,8 @@ def _run_lane(u, h, th, y0, v0, z0, ycap, out_y, out_s, sens):
                     gth = -v1 * p1 * az1
                 elif j == 6:
                     gth = -(B * abs(v1) * p1 * z1 + D * v1 * p1 * az1) * lnz
-                # R1: m da1 + c dv1 + k dy1 + dz1 + a1 dm + v1 dc + y1 dk = 0
-                rhs1 = -(m * da_part + c * dv_part)
+                # R1: m da1 + (c + fv) dv1 + (k + fy) dy1 + dz1 + a1 dm + v1 dc + y1 dk = 0
+                rhs1 = -(m * da_part + (c + fv1) * dv_part)
                 if j == 0:
                     rhs1 -= a1
                 elif j == 1:
@@ -302,9 +351,9 @@ def _run_lane(u, h, th, y0, v0, z0, ycap, out_y, out_s, sens):
                     rhs1 -= y1
                 # R2: dz1 - dz0 - h/2 (dg0 + gv1 dv1 + gz1 dz1 + gth) = 0
                 rhs2 = sz[j] + 0.5 * h * (sg[j] + gv1 * dv_part + gth)
-                # [keff, 1; -gv1, j22] [dy1; dz1] = [rhs1; rhs2]
+                # [j11, 1; -gv1, j22] [dy1; dz1] = [rhs1; rhs2]
                 dy1 = (rhs1 * j22 - rhs2) / det
-                dz1 = (keff * rhs2 + gv1 * rhs1) / det
+                dz1 = (j11 * rhs2 + gv1 * rhs1) / det
                 dv1 = 2.0 / h * dy1 + dv_part
                 da1 = 4.0 / hh * dy1 + da_part
                 sg[j] = gv1 * dv1 + gz1 * dz1 + gth
@@ -359,7 +408,7 @@ def simulate_fine(u_fine: np.ndarray, h: float, theta, *, y0: float = 0.0, v0: f
     of the discrete scheme when ``sensitivities`` (else None); ``ok`` ``(lanes,)`` False
     where a lane diverged (|y| > ``ycap`` [m] or Newton failed; its y is NaN from there).
     """
-    th = as_theta(theta)
+    th = with_extras(as_theta(theta))
     u = np.ascontiguousarray(u_fine, dtype=np.float64)
     L, n = th.shape[0], u.size
     out_y = np.empty((L, n))
