@@ -71,6 +71,91 @@ def free_tcp_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
+#: packages whose code makes the twin's recordings (their source is part of the cache key)
+_TWIN_PACKAGES = ("simulate", "models", "kinematics", "config")
+_code_digest_memo: list[str] = []
+#: cached motions kept in the cache directory (the newest; a few MB each)
+_CACHE_KEEP = 12
+
+
+def _twin_code_digest() -> str:
+    """SHA-256 over the source of the packages the twin's result depends on (and the
+    package version): a cached motion is never one that other code computed."""
+    if not _code_digest_memo:
+        import hashlib
+        from pathlib import Path
+
+        import cablesvc
+
+        h = hashlib.sha256(cablesvc.__version__.encode())
+        root = Path(cablesvc.__file__).resolve().parent
+        for pkg in _TWIN_PACKAGES:
+            for f in sorted((root / pkg).rglob("*.py")):
+                h.update(str(f.relative_to(root)).encode())
+                h.update(f.read_bytes())
+        _code_digest_memo.append(h.hexdigest())
+    return _code_digest_memo[0]
+
+
+def controller_cache_dir() -> str:
+    """Where simulated controllers keep their precomputed motion: ``$CABLESVC_CACHE_DIR``
+    or ``$XDG_CACHE_HOME/cablesvc`` or ``~/.cache/cablesvc``, then ``controller/``."""
+    base = os.environ.get("CABLESVC_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "cablesvc")
+    return os.path.join(base, "controller")
+
+
+def cached_there_and_back_recording(robot: Robot, scenario: str, *, duration: float, rate: float,
+                                    seed: int) -> tuple[Recording, str]:
+    """:func:`there_and_back_recording`, kept in :func:`controller_cache_dir` under a key of
+    the robot (all its fields), the arguments and the twin's code: the embedded demo's 10 s
+    at 1 kHz cost some 5 s of twin simulation at every start. A cache that cannot be read
+    or written is skipped (the motion is computed). Returns (recording, what happened:
+    ``"cached"``, ``"computed"`` or ``"computed (cache not written: ...)"``)."""
+    import hashlib
+    import logging
+    import tempfile
+
+    key = hashlib.sha256(json.dumps({"robot": robot.model_dump(mode="json", exclude={"source"}),
+                                     "scenario": scenario, "duration": float(duration), "rate": float(rate),
+                                     "seed": int(seed), "code": _twin_code_digest()},
+                                    sort_keys=True, default=str).encode()).hexdigest()[:24]
+    d = controller_cache_dir()
+    path = os.path.join(d, f"{robot.name}-{scenario}-{key}.npz")
+    fields = ("t", "seq", "motor_length", "position", "orientation", "force", "temperature")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: (z[k] if k in z.files else None) for k in fields}
+            meta = json.loads(str(z["metadata"]))
+            if str(z["robot"]) != robot.name:
+                raise ValueError("robot name")
+        return Recording(robot=robot.name, metadata=meta, **arrays), "cached"
+    except Exception:       # missing, cut (BadZipFile), foreign: a cache, so compute instead
+        pass
+    rec = there_and_back_recording(robot, scenario, duration=duration, rate=rate, seed=seed)
+    try:
+        os.makedirs(d, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=d, suffix=".npz.tmp")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, robot=np.array(rec.robot), metadata=np.array(json.dumps(rec.metadata)),
+                         **{k: getattr(rec, k) for k in fields if getattr(rec, k) is not None})
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        old = sorted((os.path.join(d, f) for f in os.listdir(d) if f.endswith(".npz")), key=os.path.getmtime)
+        for f in old[:-_CACHE_KEEP]:                 # the newest few: other robots, rates, code versions
+            try:
+                os.unlink(f)
+            except OSError:
+                pass
+    except OSError as e:
+        logging.getLogger(__name__).debug("controller cache not written: %s", e)
+        return rec, f"computed (cache not written: {e})"
+    return rec, "computed"
+
+
 def there_and_back_recording(robot: Robot, scenario: str, *, duration: float, rate: float,
                              seed: int) -> Recording:
     """One period of endless play: the twin's motion forward then backward (rows 0 .. n-1,
@@ -140,8 +225,12 @@ class SimulatedController:
         self.rate = float(rate)
         #: True when the recording is one whole there-and-back cycle played in a loop
         self.periodic = recording is None
+        #: where the motion came from: "given", "cached" or "computed" (see
+        #: :func:`cached_there_and_back_recording`)
+        self.motion_source = "given"
         if recording is None:
-            recording = there_and_back_recording(self.robot, scenario, duration=duration, rate=rate, seed=seed)
+            recording, self.motion_source = cached_there_and_back_recording(self.robot, scenario, duration=duration,
+                                                                            rate=rate, seed=seed)
         if recording.n_ticks < 2:
             raise ValueError("the controller needs a recording of at least 2 ticks")
         if recording.n_cables != self.robot.n_cables:
