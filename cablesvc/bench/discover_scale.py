@@ -191,13 +191,20 @@ def run_discover_scale(minutes: list[float], *, effect: str = "pulley", seed: in
         if identify:
             if progress:
                 progress(f"{mn:g} min: identify", (i + 0.6) / len(minutes))
-            argv = [sys.executable, "-m", "cablesvc", "identify", "--quiet", "--model", "amplitude", "--robot",
-                    ROBOT, str(path)]
-            rc, out, err, wall, rss = _timed_child(argv)
-            if rc != 0:
-                raise RuntimeError(f"identify on {path} failed ({rc}): {err.strip()[-2000:]}")
+            with tempfile.TemporaryDirectory(prefix="cablesvc-scale-") as tmp:
+                toml = Path(tmp) / "identified.toml"
+                argv = [sys.executable, "-m", "cablesvc", "identify", "--quiet", "--model", "amplitude", "--robot",
+                        ROBOT, str(path), "--out", str(toml)]
+                rc, out, err, wall, rss = _timed_child(argv)
+                if rc != 0:
+                    raise RuntimeError(f"identify on {path} failed ({rc}): {err.strip()[-2000:]}")
+                from cablesvc.config.params import load_params
+                ident = load_params(toml).identification
             row["identify_seconds"] = round(wall, 2)
             row["identify_peak_rss_mb"] = round(rss, 1)
+            # the fit's force RMSE per cable [N] on the ticks it was fitted on (identify's own number)
+            row["identify_rmse_n"] = [round(float(v), 3) for v in ident.get("rmse", [])]
+            row["identify_ticks"] = (ident.get("stream") or {}).get("analysis_ticks")
         rows.append(row)
     if progress:
         progress("done", 1.0)

@@ -38,9 +38,10 @@ examples:
 """
 
 
-#: --stream auto reduces only recordings longer than this many ticks (2 minutes at 1 kHz):
-#: shorter ones, and every calibration recording of the benches, are fitted whole as before
-STREAM_MIN_TICKS = 120_000
+#: --stream auto reduces only recordings longer than this many ticks (20 s at 1 kHz, 200 s
+#: at 100 Hz): shorter ones, and every calibration recording of the benches (100 Hz, at
+#: most a minute), are fitted whole as before
+STREAM_MIN_TICKS = 20_000
 
 
 def _fail(msg: str) -> int:
@@ -232,13 +233,14 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--stream", choices=("auto", "on", "off"), default="auto",
                    help="read the recording in pieces, decimated to --analysis-rate and sampled by whole 10 s groups "
                         "(bounded memory for long 1 kHz logs; docs/identification.md). auto (default): when the "
-                        "recording has more than 120 000 ticks and is faster than 1.5 x the analysis rate or "
+                        "recording has more than 20 000 ticks and is faster than 1.5 x the analysis rate or "
                         "longer than --max-groups groups")
     p.add_argument("--analysis-rate", type=float, default=100.0, metavar="HZ",
                    help="streamed: the rate the recording is decimated to by block means (default 100)")
-    p.add_argument("--max-groups", type=int, default=6, metavar="K",
-                   help="streamed: the most 10 s groups kept, spread over the whole recording (default 6: "
-                        "6000 ticks at 100 Hz, what a 1-minute log gives)")
+    p.add_argument("--max-groups", type=int, default=3, metavar="K",
+                   help="streamed: the most 10 s groups kept, spread over the whole recording (default 3: "
+                        "3000 ticks at 100 Hz; the swarm and the least-squares refinement cost 1-4 minutes "
+                        "on 6000)")
     p.add_argument("--json", action="store_true",
                    help="print the fleet JSON (one row per recording and the fleet summary; runs as a fleet)")
     from cablesvc.batch.cli import add_fleet_arguments
