@@ -1,5 +1,6 @@
 """Properties of the cable force models (002 eqs 3-9, 000 eqs 1-5, 001 Sec 3.4)."""
 
+import functools
 import tracemalloc
 
 import numpy as np
@@ -312,6 +313,7 @@ def test_linear_smooth_slack():
 NI = dict(b=1.8, c=0.02, alpha=147.8, beta=44.7, gamma=-15.5, n=0.43, k1=39.1, k2=1.4, k3=0.02)
 
 
+@functools.lru_cache(maxsize=None)       # the same loops serve several tests (each ~3 s to simulate)
 def _asym_loop(A, per=2000, cycles=3):
     t, x = sine(A, 1.0, cycles, per)
     m = AsymmetricBoucWen(integrator="rk4", substeps=4, **NI)
