@@ -25,16 +25,20 @@ __all__ = ["noise_floor", "cable_excess", "change_points", "state_variables", "s
            "locate"]
 
 
-def noise_floor(r: np.ndarray) -> np.ndarray:
-    """White-noise std [N] per column of r (N, m) from first differences."""
+def noise_floor(r: np.ndarray, breaks: Optional[np.ndarray] = None) -> np.ndarray:
+    """White-noise std [N] per column of r (N, m) from first differences. ``breaks`` (N,)
+    bool marks the first tick after a gap in time (the kept groups of a streamed long
+    recording): the jumps across gaps are not noise and are left out."""
     d = np.diff(r, axis=0)
+    if breaks is not None:
+        d = d[~breaks[1:]]
     return np.std(d, axis=0) / math.sqrt(2.0)
 
 
-def cable_excess(r: np.ndarray, ratio: float = 1.3) -> list[dict[str, Any]]:
+def cable_excess(r: np.ndarray, ratio: float = 1.3, breaks: Optional[np.ndarray] = None) -> list[dict[str, Any]]:
     """Per cable: RMS, noise floor, their ratio and whether it exceeds ``ratio``."""
     rms = np.sqrt(np.mean(r ** 2, axis=0))
-    fl = noise_floor(r)
+    fl = noise_floor(r, breaks)
     return [{"cable": c, "rms": float(rms[c]), "noise": float(fl[c]),
              "ratio": float(rms[c] / fl[c]) if fl[c] > 0 else float("inf"),
              "carries_residual": bool(rms[c] > ratio * fl[c])} for c in range(r.shape[1])]
@@ -154,9 +158,10 @@ def frequency_bands(r: np.ndarray, dt: float, edges=(0.0, 0.1, 1.0, 10.0)) -> li
     return out
 
 
-def locate(s, r: np.ndarray) -> dict[str, Any]:
-    """Everything above for the residual r (N, m): JSON-able."""
-    cab = cable_excess(r)
+def locate(s, r: np.ndarray, breaks: Optional[np.ndarray] = None) -> dict[str, Any]:
+    """Everything above for the residual r (N, m): JSON-able. ``breaks``: see
+    :func:`noise_floor`."""
+    cab = cable_excess(r, breaks=breaks)
     flagged = [d["cable"] for d in cab if d["carries_residual"]]
     cps = {c: change_points(s.t, r[:, c], noise=cab[c]["noise"]) for c in flagged}
     regions = state_regions(s, r, flagged)

@@ -399,16 +399,7 @@ def _discover_signals(rec: Any, rob: Robot, base: ModelParams, s: Signals, *, te
     terms = library() if terms is None else terms
     selector = selector or ForwardSelector()
     r = s.y - s.f0
-    loc = locate(s, r)
-    if breaks is not None:
-        from cablesvc.discover.stream import noise_within
-        fl = noise_within(r, breaks)
-        for d in loc["cables"]:
-            c = d["cable"]
-            d["noise"] = float(fl[c])
-            d["ratio"] = float(d["rms"] / fl[c]) if fl[c] > 0 else float("inf")
-            d["carries_residual"] = bool(d["rms"] > 1.3 * fl[c])
-        loc["flagged"] = [d["cable"] for d in loc["cables"] if d["carries_residual"]]
+    loc = locate(s, r, breaks)
     noise = np.array([d["noise"] for d in loc["cables"]])
     if not exact_baseline:
         return _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, train, valid, test, block,

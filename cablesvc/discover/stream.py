@@ -36,7 +36,6 @@ group are held at its first value, as at a recording's start.
 from __future__ import annotations
 
 import gc
-import math
 import time
 from dataclasses import dataclass, field
 from typing import Any, Optional
@@ -310,13 +309,6 @@ def read_reduced(path: Any, robot: Robot, params: ModelParams, *, rate: float = 
             "stream_seconds": time.perf_counter() - t_start}
     return ReducedRecording(t=kept["t"], position=kept["pos"], orientation=kept["ori"], force=kept["y"],
                             signals=s, breaks=breaks, info=info)
-
-
-def noise_within(r: np.ndarray, breaks: np.ndarray) -> np.ndarray:
-    """White-noise std [N] per column of r (N, m) from first differences inside the kept
-    runs (:func:`cablesvc.discover.locate.noise_floor` without the jumps across gaps)."""
-    d = np.diff(r, axis=0)[~breaks[1:]]
-    return np.std(d, axis=0) / math.sqrt(2.0)
 
 
 def wants_stream(path: Any, rate: float = ANALYSIS_RATE, block: float = 2.5, max_groups: int = MAX_GROUPS,
