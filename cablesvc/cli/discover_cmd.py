@@ -58,13 +58,11 @@ def cmd_discover(args: argparse.Namespace) -> int:
             params.identification["recording"] = str(args.calib)
         terms = library(args.terms.split(",")) if args.terms else None
         sel = ForwardSelector(SelectOptions(min_gain=args.min_gain))
-        from cablesvc.discover.stream import discover_stream, wants_stream
+        from cablesvc.cli.stream_args import wants_streaming
+        from cablesvc.discover.stream import discover_stream
         if args.stream == "on" and args.since:
             return fail("--since needs the whole recording in memory: use it with --stream off or auto")
-        streamed = args.stream == "on" or (
-            args.stream == "auto" and not args.since
-            and wants_stream(args.recording, args.analysis_rate, args.block, args.max_groups))
-        if streamed:
+        if not args.since and wants_streaming(args, args.recording, args.block):
             d = discover_stream(args.recording, robot, params, terms=terms, selector=sel, block=args.block,
                                 exact_baseline=args.exact_baseline, rate=args.analysis_rate,
                                 max_groups=args.max_groups)
@@ -169,15 +167,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="analyse only the ticks from SECONDS after the recording's start on (e.g. since an "
                         "alarm); the baseline still runs from the start, so its hysteresis state there is the "
                         "live kernel's, and the written file's creep clock starts there")
-    p.add_argument("--stream", choices=("auto", "on", "off"), default="auto",
-                   help="stream the recording, decimated to --analysis-rate and sampled by whole split groups "
-                        "(bounded memory for long 1 kHz logs; docs/discovery.md). auto (default): when the "
-                        "recording is faster than 1.5 x the analysis rate or longer than --max-groups groups")
-    p.add_argument("--analysis-rate", type=float, default=100.0, metavar="HZ",
-                   help="streamed path: the rate the recording is decimated to by block means (default 100)")
-    p.add_argument("--max-groups", type=int, default=16, metavar="K",
-                   help="streamed path: the most split groups (4 blocks each) kept, spread over the whole "
-                        "recording (default 16)")
+    from cablesvc.cli.stream_args import add_stream_arguments
+    add_stream_arguments(p, max_groups=16, doc="docs/discovery.md",
+                         what="stream the recording, decimated to --analysis-rate and sampled by whole split groups",
+                         auto="when the recording is faster than 1.5 x the analysis rate or longer than "
+                              "--max-groups groups",
+                         groups="split groups (4 blocks each) kept (default 16)")
     p.add_argument("--min-gain", type=float, default=0.05,
                    help="least relative drop of the held-out MSE for a term to count (default 0.05)")
     from cablesvc.batch.cli import add_fleet_arguments

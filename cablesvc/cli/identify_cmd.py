@@ -89,20 +89,18 @@ def cmd_identify(args: argparse.Namespace) -> int:
         return _fail(f"{rec_path}: recording not found")
     reduction = None
     try:
-        from cablesvc.discover.stream import reduced_recording, wants_stream
+        from cablesvc.cli.stream_args import wants_streaming
+        from cablesvc.discover.stream import reduced_recording
         from cablesvc.recording import read_metadata
-        streamed = args.stream == "on" or (
-            args.stream == "auto" and wants_stream(rec_path, args.analysis_rate, 2.5, args.max_groups,
-                                                   min_ticks=STREAM_MIN_TICKS))
-        if streamed:
-            robot_name = args.robot or read_metadata(rec_path).get("robot", "")
+        if wants_streaming(args, rec_path, 2.5, min_ticks=STREAM_MIN_TICKS):
+            file_robot = read_metadata(rec_path).get("robot", "")
             try:
-                robot = load_robot(robot_name)
+                robot = load_robot(args.robot or file_robot)
             except RobotFileError as e:
                 return _fail(str(e))
             rec, reduction = reduced_recording(rec_path, robot, rate=args.analysis_rate,
                                                max_groups=args.max_groups)
-            rec.robot = read_metadata(rec_path).get("robot", "")
+            rec.robot = file_robot
         else:
             rec = read_recording(rec_path)
     except RecordingError as e:
@@ -230,17 +228,14 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--particles", type=int, default=10, help="PSO particles p (000: 10)")
     p.add_argument("--iterations", type=int, default=75, help="PSO iterations q (000: 75)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--stream", choices=("auto", "on", "off"), default="auto",
-                   help="read the recording in pieces, decimated to --analysis-rate and sampled by whole 10 s groups "
-                        "(bounded memory for long 1 kHz logs; docs/identification.md). auto (default): when the "
-                        "recording has more than 20 000 ticks and is faster than 1.5 x the analysis rate or "
-                        "longer than --max-groups groups")
-    p.add_argument("--analysis-rate", type=float, default=100.0, metavar="HZ",
-                   help="streamed: the rate the recording is decimated to by block means (default 100)")
-    p.add_argument("--max-groups", type=int, default=3, metavar="K",
-                   help="streamed: the most 10 s groups kept, spread over the whole recording (default 3: "
-                        "3000 ticks at 100 Hz; the swarm and the least-squares refinement cost 1-4 minutes "
-                        "on 6000)")
+    from cablesvc.cli.stream_args import add_stream_arguments
+    add_stream_arguments(p, max_groups=3, doc="docs/identification.md",
+                         what="read the recording in pieces, decimated to --analysis-rate and sampled by whole "
+                              "10 s groups",
+                         auto="when the recording has more than 20 000 ticks and is faster than 1.5 x the "
+                              "analysis rate or longer than --max-groups groups",
+                         groups="10 s groups kept (default 3: 3000 ticks at 100 Hz; the swarm and the "
+                                "least-squares refinement cost 1-4 minutes on 6000)")
     p.add_argument("--json", action="store_true",
                    help="print the fleet JSON (one row per recording and the fleet summary; runs as a fleet)")
     from cablesvc.batch.cli import add_fleet_arguments
