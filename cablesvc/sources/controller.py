@@ -36,6 +36,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import collections
+import functools
 import json
 import os
 import socket
@@ -73,28 +74,26 @@ def free_tcp_port(host: str = "127.0.0.1") -> int:
 
 #: packages whose code makes the twin's recordings (their source is part of the cache key)
 _TWIN_PACKAGES = ("simulate", "models", "kinematics", "config")
-_code_digest_memo: list[str] = []
 #: cached motions kept in the cache directory (the newest; a few MB each)
 _CACHE_KEEP = 12
 
 
+@functools.lru_cache(maxsize=1)
 def _twin_code_digest() -> str:
     """SHA-256 over the source of the packages the twin's result depends on (and the
     package version): a cached motion is never one that other code computed."""
-    if not _code_digest_memo:
-        import hashlib
-        from pathlib import Path
+    import hashlib
+    from pathlib import Path
 
-        import cablesvc
+    import cablesvc
 
-        h = hashlib.sha256(cablesvc.__version__.encode())
-        root = Path(cablesvc.__file__).resolve().parent
-        for pkg in _TWIN_PACKAGES:
-            for f in sorted((root / pkg).rglob("*.py")):
-                h.update(str(f.relative_to(root)).encode())
-                h.update(f.read_bytes())
-        _code_digest_memo.append(h.hexdigest())
-    return _code_digest_memo[0]
+    h = hashlib.sha256(cablesvc.__version__.encode())
+    root = Path(cablesvc.__file__).resolve().parent
+    for pkg in _TWIN_PACKAGES:
+        for f in sorted((root / pkg).rglob("*.py")):
+            h.update(str(f.relative_to(root)).encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()
 
 
 def controller_cache_dir() -> str:
