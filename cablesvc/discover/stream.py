@@ -237,13 +237,22 @@ class _Decimator:
             yield dec
 
 
+def _reduction_info(src: "_Decimator", acc: _Acc, groups: list[int], analysis_ticks: int, block: float,
+                    max_groups: int, t_start: float) -> dict[str, Any]:
+    """What a reduction read and kept (the ``stream`` entry of reports and parameter files)."""
+    return {"t0": src.t0, "ticks": src.ticks, "rate_hz": 1.0 / src.raw_dt,
+            "analysis_rate_hz": 1.0 / (src.raw_dt * src.D), "decimation": src.D, "analysis_ticks": analysis_ticks,
+            "groups_seen": acc.seen + 1, "groups_kept": len(groups), "group_stride": acc.stride,
+            "group_s": 4.0 * block, "max_groups": max_groups, "stream_seconds": time.perf_counter() - t_start}
+
+
 def read_reduced(path: Any, robot: Robot, params: ModelParams, *, rate: float = ANALYSIS_RATE,
                  block: float = 2.5, max_groups: int = MAX_GROUPS, chunk_ticks: int = 200_000) -> ReducedRecording:
     """Stream the recording at ``path`` into the reduced :class:`Signals` (see the module):
     ``rate`` [Hz] the analysis rate (no decimation when the recording is slower than 1.5 x
     that), ``block`` [s] the split block, ``max_groups`` the most split groups kept,
     ``chunk_ticks`` the piece size read at a time."""
-    from cablesvc.discover.pipeline import DiscoveryError
+    from cablesvc.discover.pipeline import DiscoveryError, backward_rate
 
     t_start = time.perf_counter()
     geom = robot.geometry()
@@ -275,7 +284,6 @@ def read_reduced(path: Any, robot: Robot, params: ModelParams, *, rate: float = 
         tt = t if last is None else np.r_[last["t"], t]
         xx = x if last is None else np.vstack([last["x"], x])
         mm = dec["ml"] if last is None else np.vstack([last["ml"], dec["ml"]])
-        from cablesvc.discover.pipeline import backward_rate
         v = backward_rate(xx, tt)
         vs = -backward_rate(mm, tt)
         if last is not None:
@@ -292,7 +300,7 @@ def read_reduced(path: Any, robot: Robot, params: ModelParams, *, rate: float = 
                  "ori": dec["ori"]})
     if src.t0 is None:
         raise DiscoveryError("the recording has no ticks")
-    t0, ticks, raw_dt, D, has_temp = src.t0, src.ticks, src.raw_dt, src.D, src.has_temp
+    raw_dt, D, has_temp = src.raw_dt, src.D, src.has_temp
     kept, breaks, groups = acc.result()
     if not kept or kept["t"].size < 200:
         raise DiscoveryError(f"the recording is too short for a held-out split "
@@ -303,10 +311,7 @@ def read_reduced(path: Any, robot: Robot, params: ModelParams, *, rate: float = 
                 ea=np.asarray(geom.ea, float), has_pulley=np.asarray(geom.has_pulley, bool),
                 amplitude=kept["amplitude"], train=np.ones(kept["t"].size, bool),
                 cable_names=tuple(geom.cable_names))
-    info = {"t0": t0, "ticks": ticks, "rate_hz": 1.0 / raw_dt, "analysis_rate_hz": 1.0 / (raw_dt * D), "decimation": D,
-            "analysis_ticks": int(s.n), "groups_seen": acc.seen + 1, "groups_kept": len(groups),
-            "group_stride": acc.stride, "group_s": 4.0 * block, "max_groups": max_groups,
-            "stream_seconds": time.perf_counter() - t_start}
+    info = _reduction_info(src, acc, groups, int(s.n), block, max_groups, t_start)
     return ReducedRecording(t=kept["t"], position=kept["pos"], orientation=kept["ori"], force=kept["y"],
                             signals=s, breaks=breaks, info=info)
 
@@ -383,12 +388,8 @@ def reduced_recording(path: Any, robot: Robot, *, rate: float = ANALYSIS_RATE, b
     rec = Recording(robot=robot.name, metadata={}, t=kept["t"], seq=np.arange(n, dtype=np.int64),
                     motor_length=kept["ml"], position=kept["pos"], orientation=kept["ori"], force=kept["y"],
                     temperature=temp)
-    info = {"t0": src.t0, "ticks": src.ticks, "rate_hz": 1.0 / src.raw_dt,
-            "analysis_rate_hz": 1.0 / (src.raw_dt * src.D), "decimation": src.D, "analysis_ticks": int(n),
-            "groups_seen": acc.seen + 1, "groups_kept": len(groups), "group_stride": acc.stride,
-            "group_s": 4.0 * block, "max_groups": max_groups, "gaps": int(breaks[1:].sum()),
-            "stream_seconds": time.perf_counter() - t_start}
-    return rec, info
+    info = _reduction_info(src, acc, groups, int(n), block, max_groups, t_start)
+    return rec, {**info, "gaps": int(breaks[1:].sum())}
 
 
 def describe_reduction(st: dict[str, Any]) -> str:
