@@ -163,3 +163,34 @@ def test_cli_calib_identifies_then_discovers_and_prints_the_verdict_first(tmp_pa
     bad = ap.parse_args(["discover", "--robot", ROBOT, "--calib", str(tmp_path / "nope.mcap"), str(tmp_path / "r.mcap")])
     assert bad.func(bad) == 1
     assert "nope.mcap" in capsys.readouterr().err
+
+
+def test_block_screen_names_a_term_only_where_it_explains_most_of_the_residual():
+    # cable 2: a viscous force alone; cable 5: a rate-dependent hysteresis of another form
+    # (sgn(v)|v|^0.3, the kind an imperfect baseline leaves), which the viscous column
+    # explains in part. Only on cable 2 does the term explain most of what the
+    # recalibrated baseline leaves
+    from cablesvc.discover.pipeline import build_signals, split_blocks
+    from cablesvc.discover.screen import BlockScreen
+    from cablesvc.models.terms import LIBRARY, Recalibration
+
+    rob = load_robot(ROBOT)
+    s = build_signals(_rec([], seed=5), rob, baseline_params(rob))
+    train, valid, _ = split_blocks(s.t, 2.5)
+    s.train = train
+    rng = np.random.default_rng(4)
+    r = 0.1 * rng.standard_normal(s.y.shape)
+    r[:, 2] += 0.5 * s.v[:, 2] / np.sqrt(np.mean(s.v[:, 2] ** 2))
+    u = s.v[:, 5] / np.abs(s.v[:, 5]).max()
+    form = np.sign(u) * np.abs(u) ** 0.3
+    r[:, 5] += 1.0 * form / form.std()
+    noise = np.full(s.m, 0.1)
+    sel = BlockScreen().select(s, r, [LIBRARY["viscous"]], train, valid, noise=noise, base=[Recalibration()])
+    assert sel.named() == {"viscous": [2]}
+    t2, t5 = sel.tests[("viscous", 2)], sel.tests[("viscous", 5)]
+    assert t2["passed"] and t2["share"] > 0.8 and t2["p_holm"] < 0.05
+    assert 0.2 < t5["share"] < 0.8 and t5["gain"] > 5.0 and not t5["passed"]
+    # without the share rule and the test, the gain alone would name it on cable 5 too
+    loose = BlockScreen(alpha=1.01, share_min=0.0).select(s, r, [LIBRARY["viscous"]], train, valid, noise=noise,
+                                                           base=[Recalibration()])
+    assert {2, 5} <= set(loose.named()["viscous"])

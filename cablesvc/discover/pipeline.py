@@ -36,6 +36,7 @@ from cablesvc.config.params import ModelParams, default_params, load_params
 from cablesvc.config.robot import Robot, load_robot
 from cablesvc.discover.locate import locate
 from cablesvc.discover.select import Fit, ForwardSelector, Selection, fit_terms
+from cablesvc.discover.screen import BlockScreen
 from cablesvc.models.terms import Signals, Term, library, reversal_amplitude
 from cablesvc.kinematics import inverse_kinematics
 from cablesvc.models import simulate
@@ -449,10 +450,9 @@ UNEXPLAINED_FLOOR = 1.0
 #: ... and by this many times the median excess of all cables: what an imperfect baseline
 #: leaves everywhere after its recalibration is its model form, not an unexplained effect
 UNEXPLAINED_OVER_TYPICAL = 4.0
-#: a term's held-out gain on a cable must exceed this many times its median gain over all
-#: the cables it applies to (the baseline's model form is shared by its cables; a
-#: concealed effect is not)
-SPECIFIC_OVER_TYPICAL = 4.0
+#: the share of the held-out residual variance (what the recalibrated baseline leaves on
+#: the cable, noise included) a term must explain to be named (:mod:`.screen`)
+SHARE_MIN = 0.8
 
 
 def _finding(t: Term, cables: list[int], s: Signals, r: np.ndarray, final: dict[int, Fit], full: dict[int, Fit],
@@ -488,54 +488,20 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     m = s.m
     nuis = Recalibration()
     cands = [t for t in terms if not t.model_form]
-    if isinstance(selector, ForwardSelector) and not selector.options.effective_n:
-        from dataclasses import replace
-        selector = ForwardSelector(replace(selector.options, effective_n=True))
-    sel = selector.select(s, r, cands, train, valid, noise=noise, base=[nuis])
-    fitmask = train | valid
-    blocks = block_ids(s.t, block / 2.0, fitmask)     # test units: half a split block
+    # the selector of this mode is the block screen (:mod:`cablesvc.discover.screen`); a
+    # BlockScreen passed in is used with its own options, any other selector is for the
+    # exact-baseline mode, where every residual is physics
+    screen = selector if isinstance(selector, BlockScreen) else BlockScreen(alpha=ALPHA, share_min=SHARE_MIN)
+    screen.block = block / 2.0                     # test units: half a split block
     cache = _Cache()
+    sel = screen.select(s, r, cands, train, valid, noise=noise, base=[nuis], cache=cache)
+    fitmask = train | valid
+    blocks = sel.blocks
     hyp = {c: dict(sel.fits[c].hyper) for c in range(m)}
     kept = {c: list(sel.fits[c].terms) for c in range(m)}
-
-    # block-level test of every (term, cable) the selector chose, Holm over all tries
-    tries = sum(1 for t in cands for c in range(m) if t.applies(s, c))
-    raw_p: dict[tuple[str, int], float] = {}
-    tests: dict[tuple[str, int], dict[str, float]] = {}
-    for c in range(m):
-        ts = kept[c]
-        if len(ts) <= 1:
-            continue
-        e1 = loo_errors(s, c, r[:, c], ts, [hyp[c][u.name] for u in ts], blocks, cache)
-        for t in ts[1:]:
-            rest = [u for u in ts if u.name != t.name]
-            e0 = loo_errors(s, c, r[:, c], rest, [hyp[c][u.name] for u in rest], blocks, cache)
-            tests[(t.name, c)] = block_gain_test(e0, e1, noise[c])
-            raw_p[(t.name, c)] = tests[(t.name, c)]["p"]
-    adj = holm(raw_p, tries)
-    # specificity: an imperfect baseline's model form is shared by all its cables, so a
-    # term that explains a concealed effect on a cable must gain there clearly more than
-    # it gains on the cables in general (the median over all cables it applies to)
-    typical_gain: dict[str, float] = {}
-    for name in {n for n, _ in raw_p}:
-        t = next(u for u in cands if u.name == name)
-        gains = []
-        for c in range(m):
-            if not t.applies(s, c):
-                continue
-            if (name, c) in tests:
-                gains.append(tests[(name, c)]["gain"])
-                continue
-            base_c = [u for u in kept[c] if u.name != name]
-            hs = [hyp[c][u.name] for u in base_c]
-            f = fit_terms(s, c, r[:, c], base_c + [t], train, hypers=hs + [None], cache=cache)
-            e1 = loo_errors(s, c, r[:, c], base_c + [t], hs + [f.hyper[name]], blocks, cache)
-            e0 = loo_errors(s, c, r[:, c], base_c, hs, blocks, cache)
-            gains.append(block_gain_test(e0, e1, noise[c])["gain"])
-        typical_gain[name] = float(np.median(np.maximum(gains, 0.0))) if gains else 0.0
-    for (name, c), pv in adj.items():
-        if pv >= ALPHA or tests[(name, c)]["gain"] <= SPECIFIC_OVER_TYPICAL * typical_gain[name]:
-            kept[c] = [u for u in kept[c] if u.name != name]
+    tries = sel.tries
+    adj = {k: v["p_holm"] for k, v in sel.tests.items()}
+    tests = sel.tests
 
     final: dict[int, Fit] = {}
     full: dict[int, Fit] = {}
@@ -623,8 +589,9 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                 "peak_hz": float(np.median([_spectrum_peak(left[fitmask, c], s.dt) for c in cs])),
                 "excess_rms_N": float(np.median([math.sqrt(max(un_test[c]["excess"], 0.0)) * noise[c] for c in cs])),
                 "p": float(max(un_adj[c] for c in cs))})
-    sel_info = {"tests": {f"{n}@{c}": {**v, "p_holm": adj[(n, c)], "typical_gain": typical_gain[n]}
-                          for (n, c), v in tests.items()}, "tries": tries,
+    sel_info = {"tests": {f"{n}@{c}": dict(v) for (n, c), v in tests.items()},
+                "joint_tests": {f"{n}@{c}": dict(v) for (n, c), v in sel.joint.items()}, "tries": tries,
+                "share_min": screen.share_min,
                 "unexplained_floor_noise_var": floor, "typical_excess_noise_var": typical}
     return Discovery(robot=rob.name, baseline=base, signals=s, residual=r,
                      masks={"train": train, "valid": valid, "test": test}, location=loc, selection=sel,
