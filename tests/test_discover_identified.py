@@ -194,3 +194,18 @@ def test_block_screen_names_a_term_only_where_it_explains_most_of_the_residual()
     loose = BlockScreen(alpha=1.01, share_min=0.0).select(s, r, [LIBRARY["viscous"]], train, valid, noise=noise,
                                                            base=[Recalibration()])
     assert {2, 5} <= set(loose.named()["viscous"])
+
+
+def test_exact_signed_rank_p_values_equal_scipys():
+    from scipy import stats
+
+    from cablesvc.discover.evidence import _w_p
+    rng = np.random.default_rng(3)
+    for n in (5, 6, 12, 18, 33, 50):
+        for shift in (-0.5, 0.0, 0.7):
+            g = rng.standard_normal(n) + shift
+            w, p = _w_p(g)
+            ref = stats.wilcoxon(g, alternative="greater")
+            assert w == ref.statistic and p == pytest.approx(ref.pvalue, rel=1e-12, abs=1e-15)
+    g = np.r_[np.ones(4), 2.0, 2.0, -1.0, 3.0]                # ties: scipy's own method
+    assert _w_p(g)[1] == pytest.approx(stats.wilcoxon(g, alternative="greater").pvalue)
