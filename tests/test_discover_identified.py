@@ -61,8 +61,11 @@ def test_creep_named_beyond_the_recalibrated_baseline_with_a_p_value():
     assert d.named == ["creep"]
     assert d.findings[0].cables == [2]
     assert 0.0 <= d.findings[0].p_value < 0.05
+    assert d.findings[0].share[2] >= 0.8                # it explains most of what is left
     doc = d.to_json()
     assert doc["findings"][0]["p_value"] == d.findings[0].p_value
+    assert doc["findings"][0]["share"] == {"2": d.findings[0].share[2]}
+    assert "% of the held-out residual" in d.findings[0].sentence()
     assert d.summary()[0].startswith("verdict: creep on cable 2")
 
 

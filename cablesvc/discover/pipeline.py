@@ -136,8 +136,12 @@ class Finding:
     raw_r: dict[int, float]
     params: dict[int, dict[str, Any]]
     #: per cable, the block-level p-value of the term (leave-one-block-out per-block gains,
-    #: one-sided t-test, Holm-corrected over all (term, cable) tries); empty in exact mode
+    #: one-sided Wilcoxon signed-rank test, Holm-corrected over all (term, cable) tries);
+    #: empty in exact mode
     p: dict[int, float] = field(default_factory=dict)
+    #: per cable, the share of the held-out residual variance (what the recalibrated
+    #: baseline leaves) the term explains (:mod:`cablesvc.discover.screen`); empty in exact mode
+    share: dict[int, float] = field(default_factory=dict)
 
     @property
     def p_value(self) -> Optional[float]:
@@ -150,6 +154,8 @@ class Finding:
         ev = f"held-out r = {rr:.2f}" if self.r else "wrench residual of the measured forces"
         if self.p:
             ev += f", block-level p = {self.p_value:.2g}"
+        if self.share:
+            ev += f", explains {100.0 * min(self.share.values()):.0f} % of the held-out residual"
         return (f"{self.label}: the residual follows {self.variable} on cable{'s' if len(self.cables) > 1 else ''} "
                 f"{cs} ({ev}, model: {self.equation})")
 
@@ -307,7 +313,8 @@ class Discovery:
                           "cables": f.cables, "r": {str(k): v for k, v in f.r.items()},
                           "raw_r": {str(k): v for k, v in f.raw_r.items()},
                           "params": {str(k): v for k, v in f.params.items()}, "sentence": f.sentence(),
-                          "p": {str(k): v for k, v in f.p.items()}, "p_value": f.p_value}
+                          "p": {str(k): v for k, v in f.p.items()}, "p_value": f.p_value,
+                          "share": {str(k): v for k, v in f.share.items()}}
                          for f in self.findings],
             "verdict": self.verdict(),
             "recalibration": self.recalibration,
@@ -456,7 +463,7 @@ SHARE_MIN = 0.8
 
 
 def _finding(t: Term, cables: list[int], s: Signals, r: np.ndarray, final: dict[int, Fit], full: dict[int, Fit],
-             test: np.ndarray, p: dict[int, float]) -> Finding:
+             test: np.ndarray, p: dict[int, float], share: Optional[dict[int, float]] = None) -> Finding:
     rr, raw, phys = {}, {}, {}
     for c in cables:
         fit = final[c]
@@ -466,7 +473,7 @@ def _finding(t: Term, cables: list[int], s: Signals, r: np.ndarray, final: dict[
         raw[c] = _corr(left, t.evidence(s, c, fit.hyper[t.name])[test])
         phys[c] = t.physical(full[c].params[t.name], full[c].hyper[t.name], s, c)
     return Finding(term=t.name, label=t.label, equation=t.equation, variable=t.variable, cables=list(cables),
-                   r=rr, raw_r=raw, params=phys, p=p)
+                   r=rr, raw_r=raw, params=phys, p=p, share=dict(share or {}))
 
 
 def _spectrum_peak(e: np.ndarray, dt: float) -> float:
@@ -519,7 +526,8 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
         for u in kept[c][1:]:
             named.setdefault(u.name, []).append(c)
     findings = [_finding(next(u for u in cands if u.name == n), cs, s, r, final, full, test,
-                         {c: adj[(n, c)] for c in cs}) for n, cs in named.items()]
+                         {c: adj[(n, c)] for c in cs},
+                         {c: sel.joint.get((n, c), tests[(n, c)])["share"] for c in cs}) for n, cs in named.items()]
 
     # the baseline's own finding: does its recalibration earn its place on held-out blocks?
     rc_p, rc_test = {}, {}
