@@ -110,8 +110,13 @@ def _client(scheduler: Optional[str], workers: int, memory_limit: Any):
            if k != "MALLOC_TRIM_THRESHOLD_"}
     # Dask's statistical profiler samples every worker thread's stack every 10 ms for its
     # dashboard (which this cluster does not serve); the jobs are long pure-Python/numpy
-    # loops, and measured here it cost the workers about a tenth more CPU per discovery
-    with dask.config.set({"distributed.nanny.pre-spawn-environ": env, "distributed.worker.profile.enabled": False}):
+    # loops, and measured here it cost the workers about a tenth more CPU per discovery.
+    # Worker saturation 1.0: the scheduler hands a one-thread worker its next recording only
+    # when the last is done. With Dask's default 1.1 (ceil: two per worker) a worker could
+    # hold a second recording at the end of the run while the other worker had nothing left
+    # to do, and one job of several seconds then ran alone
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": env, "distributed.worker.profile.enabled": False,
+                          "distributed.scheduler.worker-saturation": 1.0}):
         # no dashboard; the scheduler's small HTTP server (health, metrics) on a free loopback port
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                                dashboard_address=None, silence_logs=logging.ERROR, memory_limit=memory_limit,
