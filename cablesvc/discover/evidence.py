@@ -18,6 +18,7 @@ that fitting may use (training + validation, never the test blocks):
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Optional
 
@@ -59,13 +60,16 @@ def loo_errors(s: Signals, c: int, r: np.ndarray, terms: list[Term], hypers: lis
     return out
 
 
+@functools.lru_cache(maxsize=64)
 def _signed_rank_counts(n: int) -> np.ndarray:
     """Number of subsets of the ranks 1..n with each rank sum 0..n(n+1)/2: the exact null
-    distribution of the signed-rank statistic W+ (times 2^n)."""
+    distribution of the signed-rank statistic W+ (times 2^n); cached per n (every test of
+    one discovery has the same number of blocks), read-only."""
     c = np.zeros(n * (n + 1) // 2 + 1)
     c[0] = 1.0
     for k in range(1, n + 1):
         c[k:] = c[k:] + c[:-k].copy()
+    c.flags.writeable = False
     return c
 
 

@@ -486,7 +486,7 @@ def _spectrum_peak(e: np.ndarray, dt: float) -> float:
 def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, train, valid, test, block,
                          t_origin) -> Discovery:
     from cablesvc.discover.equilibrium import equilibrium_check
-    from cablesvc.discover.evidence import block_gain_test, block_ids, excess_test, holm, loo_errors
+    from cablesvc.discover.evidence import block_gain_test, excess_test, holm, loo_errors
     from cablesvc.discover.locate import state_regions
     from cablesvc.discover.nuisance import Recalibration, describe_recalibration
     from cablesvc.discover.select import _Cache
@@ -499,9 +499,9 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     # BlockScreen passed in is used with its own options, any other selector is for the
     # exact-baseline mode, where every residual is physics
     screen = selector if isinstance(selector, BlockScreen) else BlockScreen(alpha=ALPHA, share_min=SHARE_MIN)
-    screen.block = block / 2.0                     # test units: half a split block
     cache = _Cache()
-    sel = screen.select(s, r, cands, train, valid, noise=noise, base=[nuis], cache=cache)
+    # test units: half a split block
+    sel = screen.select(s, r, cands, train, valid, noise=noise, base=[nuis], cache=cache, block=block / 2.0)
     fitmask = train | valid
     blocks = sel.blocks
     hyp = {c: dict(sel.fits[c].hyper) for c in range(m)}
@@ -530,12 +530,14 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                          {c: sel.joint.get((n, c), tests[(n, c)])["share"] for c in cs}) for n, cs in named.items()]
 
     # the baseline's own finding: does its recalibration earn its place on held-out blocks?
+    # held-out errors of the whole model per cable (also what the unexplained test below reads)
+    errs = {c: loo_errors(s, c, r[:, c], kept[c], [hyp[c][u.name] for u in kept[c]], blocks, cache)
+            for c in range(m)}
     rc_p, rc_test = {}, {}
     for c in range(m):
-        e1 = loo_errors(s, c, r[:, c], kept[c], [hyp[c][u.name] for u in kept[c]], blocks, cache)
         rest = kept[c][1:]
         e0 = loo_errors(s, c, r[:, c], rest, [hyp[c][u.name] for u in rest], blocks, cache)
-        rc_test[c] = block_gain_test(e0, e1, noise[c])
+        rc_test[c] = block_gain_test(e0, errs[c], noise[c])
         rc_p[c] = rc_test[c]["p"]
     rc_adj = holm(rc_p, m)
     per_cable = {}
@@ -573,9 +575,8 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                       "baseline's recalibration, not concealed effects")}
 
     # what nothing explains: held-out residual after the whole model, per block
-    un_p, un_test, left, errs = {}, {}, np.zeros_like(r), {}
+    un_p, un_test, left = {}, {}, np.zeros_like(r)
     for c in range(m):
-        errs[c] = loo_errors(s, c, r[:, c], kept[c], [hyp[c][u.name] for u in kept[c]], blocks, cache)
         left[:, c] = r[:, c] - full[c].pred
     typical = float(np.median([np.mean(np.concatenate(errs[c]) ** 2) / noise[c] ** 2 - 1.0 for c in range(m)]))
     floor = max(UNEXPLAINED_FLOOR, UNEXPLAINED_OVER_TYPICAL * max(typical, 0.0))

@@ -69,28 +69,27 @@ class BlockScreen:
     """Block-level screen of every (term, cable) against the nuisance (see the module).
 
     ``alpha``: family-wise error rate (Holm over all tries); ``share_min``: the share of the
-    held-out residual variance a term must explain on its cable; ``block``: the test unit
-    [s] (half the split's block by default, set by the pipeline)."""
+    held-out residual variance a term must explain on its cable."""
 
-    def __init__(self, alpha: float = 0.05, share_min: float = 0.8, block: float = 1.25):
+    def __init__(self, alpha: float = 0.05, share_min: float = 0.8):
         self.alpha = float(alpha)
         self.share_min = float(share_min)
-        self.block = float(block)
 
     def _ok(self, test: dict[str, float], p: float) -> bool:
         return p < self.alpha and test["share"] >= self.share_min
 
     def select(self, s: Signals, r: np.ndarray, terms: list[Term], train: np.ndarray, valid: np.ndarray,
                noise: Optional[np.ndarray] = None, base: Optional[list[Term]] = None,
-               cache: Optional[_Cache] = None, progress: Optional[Any] = None) -> ScreenResult:
+               cache: Optional[_Cache] = None, progress: Optional[Any] = None, block: float = 1.25) -> ScreenResult:
         """Screen ``terms`` on every cable of residual ``r`` (N, m) [N] beside the ``base``
-        terms (the nuisance, fitted on every cable); ``noise`` (m,) [N] the noise floor."""
+        terms (the nuisance, fitted on every cable); ``noise`` (m,) [N] the noise floor;
+        ``block`` [s] the test unit (the pipeline gives half its split block)."""
         base = list(base or [])
         m = s.m
         noise = np.full(m, 1.0) if noise is None else np.asarray(noise, float)
         cache = cache or _Cache()
         fitmask = train | valid
-        blocks = block_ids(s.t, self.block, fitmask)
+        blocks = block_ids(s.t, block, fitmask)
         hb = [{} for _ in base]
         tests: dict[tuple[str, int], dict[str, Any]] = {}
         hyper: dict[tuple[str, int], dict[str, float]] = {}
