@@ -162,13 +162,16 @@ def test_identify_fleet_on_the_cluster_equals_serial_and_finds_the_drifting_cabl
 
 def test_default_local_cluster_from_the_command_line(fleet, tmp_path, capsys):
     """No --scheduler: cablesvc starts its own LocalCluster (2 workers); a directory with one
-    good and one corrupt recording: the good one finishes, the corrupt one is reported."""
+    good and one corrupt recording: the good one finishes, the corrupt one is reported. The
+    workers, forked from this process whose BLAS already runs a thread per core, run one BLAS
+    thread each (two each would oversubscribe the cores)."""
     code, out = _cli(capsys, ["discover", str(fleet["root"] / "b"), "--report", str(tmp_path / "rep")])
     assert code == 1
     assert "corrupt.mcap" in out.out and "RecordingError" in out.out
     doc = json.loads((tmp_path / "rep" / "fleet.json").read_text())
     assert doc["engine"]["scheduler"] == "LocalCluster" and doc["engine"]["workers"] == 2
     assert doc["engine"]["address"].startswith("tcp://127.0.0.1:")
+    assert doc["engine"]["blas_threads_per_worker"] == 1
     assert [r["status"] for r in doc["rows"]] == ["failed", "ok"]
     html = (tmp_path / "rep" / "index.html").read_text()
     assert "Fleet summary" in html and "corrupt.mcap" in html and NIGHTS[2] in html
