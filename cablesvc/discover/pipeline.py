@@ -37,16 +37,13 @@ from cablesvc.config.robot import Robot, load_robot
 from cablesvc.discover.locate import locate
 from cablesvc.discover.select import Fit, ForwardSelector, Selection, fit_terms
 from cablesvc.discover.screen import BlockScreen
+from cablesvc.errors import DiscoveryError
 from cablesvc.models.terms import Signals, Term, library, reversal_amplitude
 from cablesvc.kinematics import inverse_kinematics
 from cablesvc.models import simulate
 
 __all__ = ["Discovery", "Finding", "DiscoveryError", "baseline_params", "backward_rate", "build_signals", "split_blocks",
            "discover"]
-
-
-class DiscoveryError(ValueError):
-    """Discovery cannot run on these inputs (no forces, too short...)."""
 
 
 def _robot(robot: Union[Robot, str, "os.PathLike[str]"]) -> Robot:

@@ -59,6 +59,7 @@ import numpy as np
 
 from cablesvc.config import Robot, load_robot
 from cablesvc.config.params import ModelParams, default_params
+from cablesvc.errors import IdentifyError
 from cablesvc.identify.local import multistart_sqp, refine
 from cablesvc.identify.identifiability import jacobian_statistics
 from cablesvc.identify.pso import normalized_mse, pso, pso_lockstep
@@ -74,10 +75,6 @@ __all__ = ["CableData", "CableFit", "IdentifyError", "cable_data", "identify_cab
 #: the models identification fits (every one in the registry, each with its search space)
 MODEL_CHOICES = tuple(MODELS)
 METHODS = ("pso+lm", "lm", "sqp")
-
-
-class IdentifyError(ValueError):
-    """Identification cannot run on these inputs (the message says why)."""
 
 
 # --------------------------------------------------------------------------------------

@@ -29,8 +29,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from cablesvc.errors import ModelError
 
-class ModelParameterError(ValueError):
+
+class ModelParameterError(ModelError, ValueError):
     """A model parameter has the wrong shape or an invalid value."""
 
 
