@@ -282,3 +282,34 @@ def test_sensitivity_eq11():
     assert s["S"][1] == pytest.approx(1.0)
     assert np.isnan(s["S"][2])                       # eq 11 is undefined at a zero parameter
     assert s["names"] == ["p0", "p1", "p2"]
+
+
+def test_one_bounds_reader_for_swarm_and_local_fits():
+    from scipy.optimize import Bounds
+
+    from cablesvc.identify.bounds import parse_bounds
+
+    # every form gives the same (lb, ub)
+    forms = [Bounds([0.0, -1.0], [2.0, 3.0]), (np.array([0.0, -1.0]), np.array([2.0, 3.0])),
+             [(0.0, 2.0), (-1.0, 3.0)], np.array([[0.0, 2.0], [-1.0, 3.0]])]
+    for f in forms:
+        lb, ub = parse_bounds(f)
+        assert lb.tolist() == [0.0, -1.0] and ub.tolist() == [2.0, 3.0]
+    lb, ub = parse_bounds(([0.0, 1.0, 2.0], [4.0, 5.0, 6.0]))       # (lb, ub) of three parameters
+    assert lb.tolist() == [0.0, 1.0, 2.0] and ub.tolist() == [4.0, 5.0, 6.0]
+    # with n (the local fits): None means unbounded, scalars broadcast
+    lb, ub = parse_bounds([(None, 1.0), (0.0, None)], 2)
+    assert lb.tolist() == [-np.inf, 0.0] and ub.tolist() == [1.0, np.inf]
+    lb, ub = parse_bounds(None, 3)
+    assert np.all(np.isneginf(lb)) and np.all(np.isposinf(ub))
+    lb, ub = parse_bounds((0.0, 1.0), 3)
+    assert lb.tolist() == [0.0] * 3 and ub.tolist() == [1.0] * 3
+    # the swarm and the multi-start need finite bounds; nobody takes upper < lower
+    with pytest.raises(ValueError, match="finite"):
+        parse_bounds([(None, 1.0), (0.0, 2.0)], 2, finite=True)
+    with pytest.raises(ValueError, match="finite"):
+        pso(lambda X: np.sum(X * X, axis=1), [(0.0, np.inf)], particles=4, iterations=2, seed=0)
+    with pytest.raises(ValueError, match=r"upper < lower for parameter index\(es\) \[1\]"):
+        parse_bounds([(0.0, 1.0), (3.0, 2.0)])
+    with pytest.raises(ValueError, match="3 \\(lo, hi\\) pairs"):
+        parse_bounds([(0.0, 1.0)] * 4, 3)

@@ -24,36 +24,10 @@ import numpy as np
 from scipy.optimize import LinearConstraint, NonlinearConstraint, least_squares, minimize
 
 from cablesvc.identify.identifiability import jacobian_statistics
-from cablesvc.identify.pso import as_bounds
+from cablesvc.identify.bounds import parse_bounds
 from cablesvc.identify.result import IdentifyResult
 
-__all__ = ["refine", "multistart_sqp", "track", "meshpoint_constraint", "linear_inequality", "parse_bounds"]
-
-
-def parse_bounds(bounds: Any, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(lb, ub)`` arrays of length n from None (unbounded), a scipy ``Bounds``, a pair
-    ``(lb, ub)`` or a sequence of ``(lo, hi)`` pairs (None in a pair means unbounded)."""
-    if bounds is None:
-        return np.full(n, -np.inf), np.full(n, np.inf)
-    if hasattr(bounds, "lb") and hasattr(bounds, "ub"):
-        lb, ub = bounds.lb, bounds.ub
-    elif (isinstance(bounds, (tuple, list)) and len(bounds) == 2 and all(isinstance(b, np.ndarray) for b in bounds)):
-        lb, ub = bounds
-    else:
-        rows = list(bounds)
-        if len(rows) == n and all(np.ndim(r) == 1 and len(r) == 2 for r in rows) and not (
-                n == 2 and isinstance(bounds, tuple) and all(isinstance(r, np.ndarray) for r in rows)):
-            lb = [(-np.inf if r[0] is None else r[0]) for r in rows]
-            ub = [(np.inf if r[1] is None else r[1]) for r in rows]
-        elif len(rows) == 2:
-            lb, ub = rows
-        else:
-            raise ValueError(f"bounds: expected (lb, ub) or {n} (lo, hi) pairs")
-    lb = np.broadcast_to(np.asarray(lb, dtype=float), (n,)).copy()
-    ub = np.broadcast_to(np.asarray(ub, dtype=float), (n,)).copy()
-    if np.any(ub < lb):
-        raise ValueError(f"bounds: upper < lower for parameter index(es) {np.flatnonzero(ub < lb).tolist()}")
-    return lb, ub
+__all__ = ["refine", "multistart_sqp", "track", "meshpoint_constraint", "linear_inequality"]
 
 
 def _fill_statistics(res: IdentifyResult, jac: np.ndarray, residual: np.ndarray) -> IdentifyResult:
@@ -210,7 +184,7 @@ def multistart_sqp(fun: Callable[[np.ndarray], float], bounds: Any, *, constrain
     IdentifyResult per start, each with ``x0`` and ``violation``), ``history`` (best
     feasible objective after each start), ``violation`` and ``method``.
     """
-    lb, ub = as_bounds(bounds)      # finite: the Latin-hypercube starts are drawn in them
+    lb, ub = parse_bounds(bounds, finite=True)      # finite: the Latin-hypercube starts are drawn in them
     n = lb.size
     if names is not None and len(names) != n:
         raise ValueError(f"names: {len(names)} names for {n} parameters")

@@ -36,9 +36,10 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from cablesvc.identify.bounds import parse_bounds
 from cablesvc.identify.result import IdentifyResult
 
-__all__ = ["pso", "pso_lockstep", "normalized_mse", "as_bounds", "initial_population", "Swarm"]
+__all__ = ["pso", "pso_lockstep", "normalized_mse", "initial_population", "Swarm"]
 
 
 def normalized_mse(y_model: np.ndarray, y_meas: np.ndarray) -> np.ndarray:
@@ -57,37 +58,6 @@ def normalized_mse(y_model: np.ndarray, y_meas: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         out = mse / var
     return np.asarray(out)
-
-
-def as_bounds(bounds: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Normalise bounds to ``(lb, ub)`` float arrays of shape ``(n,)``.
-
-    Accepts a :class:`scipy.optimize.Bounds`, a pair ``(lb, ub)`` of arrays, or a sequence of
-    ``(lo, hi)`` pairs (one per parameter). A 2x2 nested list/tuple of numbers is read as
-    two ``(lo, hi)`` pairs (the ``scipy.optimize.minimize`` convention); pass numpy arrays
-    ``(lb, ub)`` to mean the other reading.
-    """
-    if hasattr(bounds, "lb") and hasattr(bounds, "ub"):
-        lb, ub = np.atleast_1d(np.asarray(bounds.lb, float)), np.atleast_1d(np.asarray(bounds.ub, float))
-    elif (isinstance(bounds, (tuple, list)) and len(bounds) == 2
-          and all(isinstance(b, np.ndarray) for b in bounds)):
-        lb, ub = np.atleast_1d(np.asarray(bounds[0], float)), np.atleast_1d(np.asarray(bounds[1], float))
-    else:
-        b = np.asarray(bounds, dtype=float)
-        if b.ndim == 2 and b.shape[1] == 2:
-            lb, ub = b[:, 0].copy(), b[:, 1].copy()
-        elif b.ndim == 2 and b.shape[0] == 2:
-            lb, ub = b[0].copy(), b[1].copy()
-        else:
-            raise ValueError(f"bounds: expected (lb, ub) or a sequence of (lo, hi) pairs, got shape {b.shape}")
-    if lb.shape != ub.shape or lb.ndim != 1:
-        raise ValueError(f"bounds: lb and ub must be 1-D of equal length, got {lb.shape} and {ub.shape}")
-    if not (np.all(np.isfinite(lb)) and np.all(np.isfinite(ub))):
-        raise ValueError("bounds: PSO needs finite lower and upper bounds for every parameter")
-    if np.any(ub < lb):
-        bad = np.flatnonzero(ub < lb).tolist()
-        raise ValueError(f"bounds: upper < lower for parameter index(es) {bad}")
-    return lb, ub
 
 
 def initial_population(rng: np.random.Generator, lb: np.ndarray, ub: np.ndarray, particles: int) -> np.ndarray:
@@ -246,7 +216,7 @@ def pso(fun: Callable[[np.ndarray], np.ndarray], bounds: Any, *, particles: int 
     Parameters
     ----------
     fun : callable ``fun(X) -> (p,)``; ``X`` is ``(p, n)``, all particles of one iteration.
-    bounds : ``(lb, ub)`` or a sequence of ``(lo, hi)`` (see :func:`as_bounds`); finite.
+    bounds : ``(lb, ub)`` or a sequence of ``(lo, hi)`` (see :func:`~cablesvc.identify.bounds.parse_bounds`); finite.
     particles, iterations : ``p`` and ``q`` of the paper (10 and 75).
     w, c1, c2 : inertia, cognitive and social factors of eq 27 (0.8, 2.8, 1.3).
     tol : stop as soon as the best objective is ``<= tol``.
@@ -269,7 +239,7 @@ def pso(fun: Callable[[np.ndarray], np.ndarray], bounds: Any, *, particles: int 
     ``success`` is True when ``tol`` was reached, or, without ``tol``, when the iterations
     completed with a finite objective.
     """
-    lb, ub = as_bounds(bounds)
+    lb, ub = parse_bounds(bounds, finite=True)
     particles, iterations = int(particles), int(iterations)
     _check(particles, iterations, lb.size, names)
     swarm = Swarm(lb, ub, particles, np.random.default_rng(seed), x0)
@@ -319,7 +289,7 @@ def pso_lockstep(fun: Callable[[np.ndarray], np.ndarray], bounds: Sequence[Any],
     ``iterations``. Returns one :class:`IdentifyResult` per problem (``nfev`` counts that
     problem's particle evaluations).
     """
-    bl = [as_bounds(b) for b in bounds]
+    bl = [parse_bounds(b, finite=True) for b in bounds]
     K = len(bl)
     if K == 0:
         return []
