@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cablesvc.cli.run_cmd import nominal_params
+from cablesvc.config.params import nominal_params
 from cablesvc.config import load_robot
 from cablesvc.kernel import Predictor
 

@@ -9,7 +9,7 @@ import pytest
 
 from cablesvc.config import load_robot
 from cablesvc.kernel import Predictor
-from cablesvc.cli.run_cmd import nominal_params
+from cablesvc.config.params import nominal_params
 from cablesvc.service.daemon import read_snapshot, write_snapshot
 
 

@@ -24,7 +24,7 @@ import pytest
 import zenoh
 from mcap.reader import make_reader
 
-from cablesvc.cli.run_cmd import nominal_params
+from cablesvc.config.params import nominal_params
 from cablesvc.config import load_robot
 from cablesvc.config.params import default_params, load_params
 from cablesvc.kernel import Predictor

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cablesvc.cli.run_cmd import nominal_params
+from cablesvc.config.params import nominal_params
 from cablesvc.config import load_robot
 from cablesvc.recording import read_recording, write_recording
 from cablesvc.service.daemon import Daemon, DaemonOptions, Recorder

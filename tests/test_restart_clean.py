@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from cablesvc.cli.run_cmd import nominal_params
+from cablesvc.config.params import nominal_params
 from cablesvc.config import load_robot
 from cablesvc.recording import ALARMS_TOPIC, FORCES_TOPIC, write_recording
 from cablesvc.service.daemon import Daemon, DaemonOptions, read_snapshot

@@ -501,7 +501,7 @@ def test_simulated_controller_forces_follow_the_played_motion_backwards_too(robo
     of newtons (the demo then raised drift alarms at every reversal). The kernel with the
     twin's truth parameters must therefore match them within the 0.1 N sensor noise over
     whole cycles, in both directions and across the seam where the cycle loops."""
-    from cablesvc.cli.run_cmd import nominal_params
+    from cablesvc.config.params import nominal_params
     from cablesvc.kernel import Predictor
     from cablesvc.sources.controller import SimulatedController
 

@@ -21,13 +21,15 @@ import os
 from pathlib import Path
 from typing import Iterable
 
+from cablesvc.errors import BatchError
+
 __all__ = ["FleetInputError", "RECORDING_SUFFIXES", "expand_recordings", "is_pattern"]
 
 #: suffixes a directory or a glob contributes (docs/recording-format.md)
 RECORDING_SUFFIXES = (".mcap", ".csv")
 
 
-class FleetInputError(ValueError):
+class FleetInputError(BatchError, ValueError):
     """A path that does not exist or a glob / directory without recordings."""
 
 

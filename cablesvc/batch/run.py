@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Optional, Sequence
 
 from cablesvc.batch.jobs import JOBS, blas_threads, import_job_modules, worker_version
+from cablesvc.errors import BatchError
 
 __all__ = ["FleetEngineError", "FleetResult", "comparable", "run_fleet", "run_on_dask", "run_serial",
            "DEFAULT_WORKERS"]
@@ -44,7 +45,7 @@ Progress = Optional[Callable[[int, int, dict], None]]
 TIMING_FIELDS = ("seconds", "cpu_seconds")
 
 
-class FleetEngineError(RuntimeError):
+class FleetEngineError(BatchError, RuntimeError):
     """The cluster cannot run the job: scheduler unreachable, no worker, version mismatch."""
 
 

@@ -75,11 +75,11 @@ DETERMINED_RSE = 0.01
 def experiment_truth(robot: str = "ipanema3", points: int = 57) -> ModelParams:
     """The truth amplitude model of the experiment (see module docstring)."""
     from cablesvc.config.params import ModelParams
-    from cablesvc.kinematics import inverse_kinematics
+    from cablesvc.config.params import home_lengths
 
     rob = load_robot(robot)
     geom = rob.geometry()
-    L = inverse_kinematics(geom, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])).length[0]
+    L = home_lengths(geom)
     k = np.asarray(geom.ea, float) / L
     A = np.linspace(1e-4, A_MAX, points)
     a = A / A_MAX

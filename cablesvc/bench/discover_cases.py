@@ -64,7 +64,7 @@ from cablesvc.bench.truth import (
     wrench_rows,
 )
 from cablesvc.config import Robot, load_robot
-from cablesvc.config.params import ModelParams, default_params
+from cablesvc.config.params import ModelParams, home_lengths, nominal_params
 from cablesvc.jsonable import jsonable
 from cablesvc.kinematics import inverse_kinematics, platform_wrench, structure_matrix
 from cablesvc.recording import Recording
@@ -141,9 +141,9 @@ class SimRobot:
 _FLEET: dict[tuple[int, int], SimRobot] = {}
 
 
-def _nominal_elastic(geom: Any, home: np.ndarray) -> ElasticCurve:
+def _nominal_elastic(geom: Any) -> ElasticCurve:
     """The controller's model: the nominal amplitude model's elastic curve (as the twin)."""
-    return ElasticCurve(default_params(geom.ea, home, "amplitude"), geom.n_cables)
+    return ElasticCurve(nominal_params(geom), geom.n_cables)
 
 
 def calibrated_robot(index: int, fleet_seed: int = 0) -> SimRobot:
@@ -156,7 +156,7 @@ def calibrated_robot(index: int, fleet_seed: int = 0) -> SimRobot:
     t0 = time.perf_counter()
     rob = load_robot(ROBOT)
     geom = rob.geometry()
-    home = inverse_kinematics(geom, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])).length[0]
+    home = home_lengths(geom)
     k = np.asarray(geom.ea, float) / home
     variant = draw_variant(k, np.random.default_rng([fleet_seed, index, 41]))
     seed = int(np.random.default_rng([fleet_seed, index, 42]).integers(0, 2 ** 31 - 1))
@@ -224,7 +224,7 @@ class _Traj:
 def _trajectory(sr: SimRobot, seed: int, rng: np.random.Generator) -> _Traj:
     geom = sr.geom
     ctx = ScenarioContext(geom=geom, rate=RATE, duration=DURATION, rng=np.random.default_rng([seed, 1]),
-                          elastic=_nominal_elastic(geom, sr.home_length))
+                          elastic=_nominal_elastic(geom))
     kind = "ptp" if rng.random() < 0.6 else "sines"
     plan = trajectory(ctx, kind=kind, min_tension=TENSION[0], max_tension=TENSION[1])
     ik = inverse_kinematics(geom, plan.position, plan.orientation)

@@ -46,6 +46,7 @@ def long_recording(path: "os.PathLike[str] | str", minutes: float, *, effect: st
     memory; returns {"ticks", "seconds" (generation wall time), "effect"}."""
     from cablesvc.bench.truth import apply_effects
     from cablesvc.config.robot import load_robot
+    from cablesvc.config.params import home_lengths
     from cablesvc.kinematics import inverse_kinematics
     from cablesvc.recording import McapRecordingWriter
     from cablesvc.simulate import TruthConfig, effect_from_spec
@@ -57,9 +58,8 @@ def long_recording(path: "os.PathLike[str] | str", minutes: float, *, effect: st
     rob = load_robot(ROBOT)
     geom = rob.geometry()
     m = geom.n_cables
-    home = inverse_kinematics(geom, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
     effects = [effect_from_spec(effect, m)] if effect else []
-    tm = TruthModel(TruthConfig(effects=effects, noise_std=noise, seed=seed), geom, home.length[0])
+    tm = TruthModel(TruthConfig(effects=effects, noise_std=noise, seed=seed), geom, home_lengths(geom))
     tm.check_effects()
     N = int(round(minutes * 60.0 * rate))
     dt = 1.0 / rate

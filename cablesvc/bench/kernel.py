@@ -34,9 +34,8 @@ import numpy as np
 
 import cablesvc
 from cablesvc.config import load_robot
-from cablesvc.config.params import ModelParams, default_params, load_params
+from cablesvc.config.params import ModelParams, home_lengths, load_params, nominal_params
 from cablesvc.kernel import Predictor
-from cablesvc.kinematics import inverse_kinematics
 from cablesvc.models import ModelParameterError
 
 INPUTS = ("normal", "reversal", "slack", "large", "no_pose", "terms", "terms_slack", "terms_no_temperature")
@@ -160,12 +159,12 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
     geom = load_robot(robot).geometry()
     pos = np.zeros(3)
     quat = np.array([0.0, 0.0, 0.0, 1.0])
-    L = inverse_kinematics(geom, pos[None], quat[None]).length[0]
+    L = home_lengths(geom)
     if params_file:
         params: ModelParams = load_params(params_file)
     else:
         try:
-            params = default_params(geom.ea, L, model)
+            params = nominal_params(geom, model)
         except ModelParameterError:
             raise
         except ValueError as e:

@@ -140,17 +140,6 @@ def _load_config(path: str | None) -> dict[str, Any]:
         raise SystemExit(f"cablesvc run: cannot read config file {path}: {e.strerror or e}")
 
 
-def nominal_params(geom):
-    """The default model when no parameter file is given: nominal amplitude model (EA / L)."""
-    import numpy as np
-
-    from cablesvc.config.params import default_params
-    from cablesvc.kinematics import inverse_kinematics
-
-    L = inverse_kinematics(geom, np.zeros((1, 3)), np.array([[0, 0, 0, 1.0]])).length[0]
-    return default_params(geom.ea, L, "amplitude")
-
-
 def _sim_controller(robot, src: dict[str, Any], *, scenario: str | None, rate: float | None, seed: int | None,
                     channel: str):
     """The embedded default: a simulated controller (not started) on a virtual CAN bus, and
@@ -381,7 +370,7 @@ def plan_fleet(args, cfg: dict[str, Any], file: str) -> tuple[dict[str, Any], li
     """
     from cablesvc.alarms import AlarmConfig
     from cablesvc.config import load_robot
-    from cablesvc.config.params import load_params
+    from cablesvc.config.params import load_params, nominal_params
     from cablesvc.service.daemon import DaemonOptions, default_snapshot_path
     from cablesvc.service.fleet import duplicate_names
     from cablesvc.sources import SourceConfigError, open_source
@@ -555,7 +544,7 @@ def cmd_run(args) -> int:
 
 def _cmd_run(args) -> int:
     from cablesvc.config import load_robot
-    from cablesvc.config.params import load_params
+    from cablesvc.config.params import load_params, nominal_params
     from cablesvc.service.daemon import Daemon, DaemonOptions, default_snapshot_path
 
     logging.basicConfig(level=getattr(logging, str(args.log_level).upper(), logging.INFO),

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from cablesvc.errors import ConfigError
 from cablesvc.models import MODELS, CableModel, ModelParameterError
 from cablesvc.models.base import is_int as _is_int
 
@@ -69,7 +70,7 @@ def _amplitude_range_problems(r: Any) -> list[str]:
             f"got {r!r}"[:200]]
 
 
-class ParamFileError(ValueError):
+class ParamFileError(ConfigError, ValueError):
     """A parameter file is invalid; the message names the file and the field."""
 
     def __init__(self, path: str | Path, problems: list[str]):
@@ -243,3 +244,19 @@ def default_params(ea: np.ndarray, cable_length: np.ndarray, model: str = "ampli
     sections = cls.nominal(ea, cable_length)
     return ModelParams(model=cls.name, params=sections.get("params", {}), tables=sections.get("tables", {}),
                        identification=sections.get("identification", {}))
+
+
+def home_lengths(geom: Any) -> np.ndarray:
+    """The free length [m] of every cable at the home pose (platform at the origin, not
+    rotated): the typical length the nominal parameters and the nominal stiffness EA / L use.
+    ``geom`` is a :class:`~cablesvc.config.robot.RobotGeometry`; returns (m,)."""
+    from cablesvc.kinematics import inverse_kinematics
+
+    return inverse_kinematics(geom, np.zeros((1, 3)), np.array([[0.0, 0.0, 0.0, 1.0]])).length[0]
+
+
+def nominal_params(geom: Any, model: str = "amplitude") -> ModelParams:
+    """Nominal parameters at the home pose: :func:`default_params` for the robot's E*A and its
+    cable lengths at the home pose (:func:`home_lengths`). The default model of the daemon,
+    discovery and the twin when no parameter file is given."""
+    return default_params(geom.ea, home_lengths(geom), model)

@@ -37,6 +37,8 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from cablesvc.errors import ConfigError
+
 __all__ = [
     "FORMAT_VERSION",
     "GRAVITY",
@@ -61,7 +63,7 @@ AXIS_UNIT_TOLERANCE = 1e-6
 # --------------------------------------------------------------------------------------
 
 
-class RobotFileError(Exception):
+class RobotFileError(ConfigError):
     """A robot file (or robot name) that cannot be used.
 
     ``path`` is the file (or the name that was looked up); ``problems`` is the list of every

@@ -32,7 +32,7 @@ from typing import Any, Optional, Union
 
 import numpy as np
 
-from cablesvc.config.params import ModelParams, default_params, load_params
+from cablesvc.config.params import ModelParams, load_params, nominal_params
 from cablesvc.config.robot import Robot, load_robot
 from cablesvc.discover.locate import locate
 from cablesvc.discover.select import Fit, ForwardSelector, Selection, fit_terms
@@ -57,9 +57,7 @@ def baseline_params(robot: Robot, params: Union[None, str, "os.PathLike[str]", M
         return params
     if params is not None:
         return load_params(params)
-    geom = robot.geometry()
-    home = inverse_kinematics(geom, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])).length[0]
-    return default_params(geom.ea, home, "amplitude")
+    return nominal_params(robot.geometry())
 
 
 def build_signals(rec: Any, robot: Robot, params: ModelParams) -> Signals:

@@ -58,7 +58,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from cablesvc.config import Robot, load_robot
-from cablesvc.config.params import ModelParams, default_params
+from cablesvc.config.params import ModelParams, home_lengths, nominal_params
 from cablesvc.errors import IdentifyError
 from cablesvc.identify.local import multistart_sqp, refine
 from cablesvc.identify.identifiability import jacobian_statistics
@@ -352,7 +352,7 @@ def _params_file(model: str, rob: Robot, data: CableData, names: list[str], V: n
     values (listed in identification.nominal_cables)."""
     m = rob.n_cables
     geom = rob.geometry()
-    home = inverse_kinematics(geom, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])).length[0]
+    home = home_lengths(geom)
     fitted = data.cables
     others = [c for c in range(m) if c not in fitted]
     ident = {"source": "cablesvc identify", "method": method, "seed": -1 if seed is None else int(seed),
@@ -519,8 +519,7 @@ def amplitude_params(af: Any, rob: Robot, data: CableData, seed: Any) -> ModelPa
     nominal values resampled on the fitted amplitude grid)."""
     m = rob.n_cables
     geom = rob.geometry()
-    home = inverse_kinematics(geom, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])).length[0]
-    nom = default_params(geom.ea, home, "amplitude")
+    nom = nominal_params(geom)
     grid = af.table_amplitudes
     namps = np.asarray(nom.tables["amplitudes"], float)
     tables: dict[str, Any] = {"amplitudes": grid.tolist()}

@@ -33,6 +33,7 @@ import threading
 import time
 from typing import Any, Callable, Sequence
 
+from cablesvc.errors import ConfigError, ServiceError
 from cablesvc.service.daemon import Daemon, DaemonOptions
 
 log = logging.getLogger("cablesvc.fleet")
@@ -40,11 +41,11 @@ log = logging.getLogger("cablesvc.fleet")
 __all__ = ["Fleet", "FleetError", "FleetStartError", "duplicate_names"]
 
 
-class FleetError(ValueError):
+class FleetError(ConfigError, ValueError):
     """A fleet that cannot be built as given (e.g. two robots with the same name)."""
 
 
-class FleetStartError(RuntimeError):
+class FleetStartError(ServiceError, RuntimeError):
     """One robot of the fleet could not start; the others were closed again.
 
     ``index`` is the robot's position in the list given to :class:`Fleet` (the

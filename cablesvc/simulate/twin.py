@@ -34,6 +34,7 @@ from typing import Any, Optional, Union
 
 import numpy as np
 
+from cablesvc.config.params import home_lengths
 from cablesvc.config.robot import Robot, load_robot
 from cablesvc.jsonable import jsonable
 from cablesvc.kinematics import inverse_kinematics
@@ -134,8 +135,7 @@ def simulate_twin(robot: Union[Robot, str, "os.PathLike[str]"], scenario: str, *
     truth = truth if truth is not None else TruthConfig()
     rob = _robot(robot)
     geom = rob.geometry()
-    home = inverse_kinematics(geom, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
-    tm = TruthModel(truth, geom, home.length[0])
+    tm = TruthModel(truth, geom, home_lengths(geom))
     tm.check_effects()
     ctx = ScenarioContext(geom=geom, rate=float(rate), duration=duration,
                           rng=np.random.default_rng([seed, 1]), elastic=tm.elastic)
