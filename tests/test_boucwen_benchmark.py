@@ -20,7 +20,7 @@ from cablesvc.identify.boucwen_benchmark import (
     DEFAULT_DATA, SYNTHETIC_PRESETS, IdentifyOptions, ParamSpace, estimate_noise, evaluate, generate_benchmark_data, identify,
     load_benchmark, rmse, simulate_test_multisine, simulate_test_sweep, simulate_train,
 )
-from cablesvc.identify.oscillator import (
+from cablesvc.simulate.oscillator import (
     BENCHMARK_TRUTH, PARAM_NAMES, as_theta, bandlimited_upsample, decimate, decimate_fir, simulate, simulate_fine,
 )
 

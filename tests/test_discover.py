@@ -244,7 +244,7 @@ def test_general_oscillator_integrator_is_the_identification_integrator_plus_the
     Coulomb terms) must be identification's when those terms are zero, to rounding, for
     nu = 1 and nu = 2; and a non-zero extra term must change the response."""
     from cablesvc.discover.oscillator_case import simulate_general
-    from cablesvc.identify.oscillator import BENCHMARK_TRUTH, PARAM_NAMES, simulate_fine
+    from cablesvc.simulate.oscillator import BENCHMARK_TRUTH, PARAM_NAMES, simulate_fine
 
     rng = np.random.default_rng(4)
     u = 40.0 * np.cumsum(rng.normal(size=3000)) / 30.0            # a wandering force [N]

@@ -35,7 +35,7 @@ def run_bench(data: str | None = None, *, seed: int = 0, workers: int | None = N
     from cablesvc.identify.boucwen_benchmark import (
         SYNTHETIC_PRESETS, IdentifyOptions, data_dir, evaluate, generate_benchmark_data, identify, load_benchmark,
     )
-    from cablesvc.identify.oscillator import BENCHMARK_TRUTH, PARAM_NAMES
+    from cablesvc.simulate.oscillator import BENCHMARK_TRUTH, PARAM_NAMES
 
     tmp = None
     if synthetic is not None:
@@ -94,7 +94,7 @@ def _print_human(out: dict) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    from cablesvc.identify.oscillator import PARAM_NAMES, PARAM_UNITS
+    from cablesvc.simulate.oscillator import PARAM_NAMES, PARAM_UNITS
 
     con = Console()
     if not con.is_terminal:

@@ -33,9 +33,9 @@ reconstruction to band-limited (no new physics) removes it. If so it names
 "input reconstruction" as the cause.
 
 Discovery never reads truth.json. The identification's fixed integrator is the one of
-:mod:`cablesvc.identify.oscillator`; models with a cubic, Coulomb or quadratic-damping
+:mod:`cablesvc.simulate.oscillator`; models with a cubic, Coulomb or quadratic-damping
 term run :func:`simulate_general`, the same integrator with those forces switched on
-(:func:`cablesvc.identify.oscillator.integrate_lanes`).
+(:func:`cablesvc.simulate.oscillator.integrate_lanes`).
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ from typing import Any, Optional
 import numpy as np
 from scipy.optimize import least_squares
 
-from cablesvc.identify.oscillator import FS, UPSAMPLE, bandlimited_upsample, decimate, integrate_lanes, simulate_fine
+from cablesvc.simulate.oscillator import FS, UPSAMPLE, bandlimited_upsample, decimate, integrate_lanes, simulate_fine
 
 __all__ = ["OSC_TERMS", "OscModel", "simulate_general", "simulate_model", "run_boucwen_discovery",
            "boucwen_summary"]
@@ -77,7 +77,7 @@ P_UNITS = {"mL": "kg", "cL": "N s/m", "kL": "N/m", "alpha": "N/m", "beta_gamma":
 def simulate_general(u_fine: np.ndarray, h: float, P: np.ndarray):
     """Newmark (1/4, 1/2) + trapezoidal z from rest with the extra restoring forces
     ``k3 y^3 + c2 v|v| + Fc tanh(v / v_s)``; ``P`` (lanes, 11) in :data:`P_NAMES` order: the
-    benchmark's integrator (:func:`cablesvc.identify.oscillator.integrate_lanes`, one law and
+    benchmark's integrator (:func:`cablesvc.simulate.oscillator.integrate_lanes`, one law and
     one scheme for identification and discovery). Returns ``(y (lanes, n), ok (lanes,))``."""
     return integrate_lanes(u_fine, h, P)
 
@@ -95,7 +95,7 @@ def simulate_model(P: np.ndarray, u: np.ndarray, *, hold: bool = False, periodic
     """Output at 750 Hz of the models ``P`` (lanes, 11) for the input samples ``u``:
     reconstruction, 15 kHz integration from rest, MATLAB-style FIR decimation. Models with
     no extra force run the benchmark's own integrator
-    (:func:`cablesvc.identify.oscillator.simulate_fine`)."""
+    (:func:`cablesvc.simulate.oscillator.simulate_fine`)."""
     P = np.atleast_2d(np.asarray(P, float))
     uf = reconstruct(u, r, hold, periodic)
     if periodic:

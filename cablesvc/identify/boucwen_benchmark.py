@@ -12,7 +12,7 @@ periods from rest, output noise ~8e-6 m):
    at ``pso_upsample`` x 750 Hz (fine output read every ``pso_upsample`` samples, no
    decimation filter); all particles of an iteration are lanes of one simulation;
 2. least-squares descents (:func:`cablesvc.identify.local.refine`, trust-region
-   reflective, exact forward sensitivities of :mod:`cablesvc.identify.oscillator` as the
+   reflective, exact forward sensitivities of :mod:`cablesvc.simulate.oscillator` as the
    Jacobian) on the same cheap model from the best mutually distant points the swarm
    evaluated, until one fits to the noise level: the noise RMS is estimated without a
    model from the spread of the steady-state periods (:func:`estimate_noise`), and a fit
@@ -41,7 +41,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from cablesvc.identify.oscillator import (
+from cablesvc.simulate.oscillator import (
     BENCHMARK_TRUTH, FS, PARAM_NAMES, PARAM_UNITS, UPSAMPLE, as_theta, bandlimited_upsample, decimate,
     simulate, simulate_fine,
 )
