@@ -349,3 +349,54 @@ def test_hold_duration_repeats_and_cuts(ipanema3):
     assert rec.n_ticks == 4500 and rec.t[-1] == pytest.approx(4.499)
     assert len(run.plan.info["blocks"]) >= 2                 # one pass is 2.0 s
     assert np.all(np.diff(rec.seq) == 1) and rec.validate() == []
+
+
+def test_amplitude_backbone_is_one_law_with_the_lookup_explicit():
+    """The twin's elastic curve and the model's step evaluate the same backbone law
+    (models.amplitude.backbone); only the table lookup at A differs, and it is an explicit
+    choice: the step's nearest point of the resampled grid, the twin's linear interpolation."""
+    from cablesvc.config.params import ModelParams
+    from cablesvc.models import AmplitudeDependent
+    from cablesvc.simulate import ElasticCurve
+
+    amps = [1e-4, 5e-4, 1.5e-3]
+    tables = {"amplitudes": amps, "K0": [[50.0, 50.0, 50.0], [80.0, 80.0, 80.0]],
+              "K1": [[2e5, 1.6e5, 1.2e5], [3e5, 2.5e5, 2e5]], "K2": [[1e6, 2e6, 3e6], [0.0, 1e6, 4e6]],
+              "K3": [[1e9, 5e8, 2e8], [2e9, 1e9, 0.0]], "S_a": [0.0] * 3, "alpha": [0.0] * 3}
+    opts = {"x_center": [2e-4, -1e-4], "amplitude_init": [3.3e-4, 1.234e-3], "omega_init": 1.0}
+    model = AmplitudeDependent(shape=(1, 2), **tables, **opts)
+    x = np.array([[7e-4, -3e-4]])
+    state = model.create_state(x)
+    stepped = model.step(state, x, 1e-3).copy()          # at rest, no loop area: the backbone alone
+    A0 = np.asarray(opts["amplitude_init"])
+    nearest = model.backbone_force(x, A0, interpolation="nearest")
+    np.testing.assert_array_equal(stepped, nearest)
+    linear = model.backbone_force(x, A0, interpolation="linear")
+    xi = x[0] - np.asarray(opts["x_center"])
+    for c in range(2):
+        K = [np.interp(A0[c], amps, np.asarray(tables[k][c])) for k in ("K0", "K1", "K2", "K3")]
+        assert linear[0, c] == pytest.approx(K[0] + K[1] * xi[c] + K[2] * xi[c] ** 2 + K[3] * xi[c] ** 3, rel=1e-12)
+    assert not np.array_equal(linear, nearest)               # the grid's nearest point is not A itself
+    np.testing.assert_allclose(linear, nearest, rtol=1e-3)
+    params = ModelParams(model="amplitude", params=opts, tables=tables)
+    np.testing.assert_array_equal(ElasticCurve(params, 2).force(x), linear)
+    with pytest.raises(ValueError, match="interpolation"):
+        model.backbone_force(x, A0, interpolation="cubic")
+
+
+def test_twin_sag_and_sag_term_solve_the_same_irvine_equation():
+    """The twin's sag effect (iterated to convergence) and the discovery/live sag term (a
+    fixed count of Newton steps) share one solve and reach the same tension."""
+    from cablesvc.models.terms import Sag as SagTerm
+    from cablesvc.simulate.effects import RunInfo, Sag
+
+    sag = Sag(magnitude=0.6)
+    k = np.array([2e4, 5e4, 1e5, 3e5])
+    sag.bind(RunInfo(n_cables=4, dt=1e-3, n_ticks=1, duration=1.0, stiffness=k, has_pulley=np.zeros(4, bool)))
+    L = np.array([1.5, 3.0, 6.0, 9.0])
+    for f_base in (np.full(4, 0.5), np.full(4, 5.0), np.array([2.0, 40.0, 300.0, 1500.0])):
+        F = sag.solve(f_base, L)
+        cc = k * 0.6 ** 2 * L ** 3 / 24.0
+        np.testing.assert_allclose(F - f_base - cc / F ** 2, 0.0, atol=1e-9 * float(np.max(F)))
+        np.testing.assert_allclose(F, SagTerm.solve(f_base, cc), rtol=1e-11)
+        assert np.all(F > f_base)                     # sag raises the tension at a given elongation

@@ -273,7 +273,7 @@ def run_replay_bench(minutes: float = 30.0, *, robot: str = "ipanema3", rate_hz:
     from cablesvc.alarms.spread import SpreadConfig, SpreadDetector
 
     from cablesvc.kernel import Predictor
-    from cablesvc.simulate.physics import TruthConfig
+    from cablesvc.simulate.truth import TruthConfig
     from cablesvc.simulate.twin import simulate_twin
 
     cfg = config if config is not None else DriftConfig()

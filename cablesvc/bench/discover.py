@@ -56,7 +56,7 @@ import numpy as np
 
 if TYPE_CHECKING:      # the twin loads the models (numba): imported where the bench runs, so
     # that building the CLI (every ``cablesvc`` command) does not pay for it
-    from cablesvc.simulate.physics import Effect
+    from cablesvc.simulate.effects import Effect
 
 __all__ = ["run_bench", "run_realistic", "make_case", "add_parser", "main", "NOISE", "ROBOT", "SCENARIO"]
 
@@ -130,7 +130,7 @@ def make_case(kind: str, names: list[str], seed: int, rng: np.random.Generator, 
 
 
 def _plan(cases: int, rng: np.random.Generator) -> list[tuple[str, list[str]]]:
-    from cablesvc.simulate.physics import EFFECTS
+    from cablesvc.simulate.effects import EFFECTS
 
     names = list(EFFECTS)
     plan = [("single", [names[i % len(names)]]) for i in range(cases)]
@@ -144,7 +144,7 @@ def _plan(cases: int, rng: np.random.Generator) -> list[tuple[str, list[str]]]:
 
 def run_bench(cases: int = 40, seed: int = 0, progress: Optional[Any] = None) -> dict[str, Any]:
     """Run the benchmark: ``cases`` single-effect cases, half as many pairs and controls."""
-    from cablesvc.simulate.physics import EFFECTS
+    from cablesvc.simulate.effects import EFFECTS
 
     from cablesvc.discover import discover
     t0 = time.perf_counter()
@@ -321,7 +321,7 @@ def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Opti
 
 
 def format_confusion(res: dict[str, Any]) -> str:
-    from cablesvc.simulate.physics import EFFECTS
+    from cablesvc.simulate.effects import EFFECTS
 
     cols = list(EFFECTS) + ["nothing"]
     extra = sorted({k for row in res["confusion"].values() for k in row} - set(cols))

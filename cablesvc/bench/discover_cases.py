@@ -69,7 +69,8 @@ from cablesvc.jsonable import jsonable
 from cablesvc.kinematics import inverse_kinematics, platform_wrench, structure_matrix
 from cablesvc.recording import Recording
 from cablesvc.simulate import EFFECTS
-from cablesvc.simulate.physics import Effect, ElasticCurve
+from cablesvc.simulate.effects import Effect
+from cablesvc.simulate.elastic import ElasticCurve
 from cablesvc.simulate.scenarios import ScenarioContext, hold_sine, trajectory
 from cablesvc.simulate.twin import Ambient
 

@@ -50,7 +50,7 @@ def long_recording(path: "os.PathLike[str] | str", minutes: float, *, effect: st
     from cablesvc.kinematics import inverse_kinematics
     from cablesvc.recording import McapRecordingWriter
     from cablesvc.simulate import TruthConfig, effect_from_spec
-    from cablesvc.simulate.physics import TruthModel
+    from cablesvc.simulate.truth import TruthModel
     from cablesvc.simulate.scenarios import (PLANAR_WRENCH_ROWS, ScenarioContext, _ptp_path, platform_wrench,
                                              rotvec_to_quat, structure_matrix, tension_distribution)
 

@@ -57,7 +57,7 @@ same sensor noise, but
   mount shared by two cables.
 
 The library's effects (:data:`cablesvc.simulate.EFFECTS`) are reused as they are (their
-``step`` on a :class:`~cablesvc.simulate.physics.TickState`), in the twin's stage order.
+``step`` on a :class:`~cablesvc.simulate.effects.TickState`), in the twin's stage order.
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ import numpy as np
 from cablesvc.config.robot import RobotGeometry
 from cablesvc.kinematics import inverse_kinematics, platform_wrench, structure_matrix
 from cablesvc.kinematics.rotation import quat_multiply, rotvec_to_quat
-from cablesvc.simulate.physics import Effect, RunInfo, TickState, Viscous
+from cablesvc.simulate.effects import Effect, RunInfo, TickState, Viscous
 
 __all__ = ["CableVariant", "OOL_EFFECTS", "Eccentricity", "AnchorShift", "MountCompliance", "OolEffect",
            "EquilibriumRun", "apply_effects", "backbone_force", "cable_law", "draw_variant", "equilibrium_run", "solve_ik",

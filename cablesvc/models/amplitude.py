@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 from scipy.special import gammaln
@@ -24,6 +25,23 @@ def sine_power_integral(alpha: np.ndarray) -> np.ndarray:
     The integral of eqs 9 and 17 of 002 (dimensionless)."""
     a = np.asarray(alpha, dtype=np.float64)
     return np.sqrt(np.pi) * np.exp(gammaln(a / 2 + 1) - gammaln(a / 2 + 1.5))
+
+
+def backbone(xi: np.ndarray, K0: np.ndarray, K1: np.ndarray, K2: np.ndarray, K3: np.ndarray,
+             out: Optional[np.ndarray] = None) -> np.ndarray:
+    """The backbone of eq 8 of 002, its spring part: K0 + K1 xi + K2 xi^2 + K3 xi^3 [N] at
+    xi = x - x_center [m], by Horner's rule (into ``out``, nothing allocated when given).
+
+    The one home of this law: :meth:`AmplitudeDependent.step` and
+    :meth:`AmplitudeDependent.backbone_force` (the twin's elastic curve) evaluate it here."""
+    p = np.empty(np.broadcast_shapes(*(np.shape(a) for a in (xi, K0, K1, K2, K3)))) if out is None else out
+    np.multiply(K3, xi, p)
+    np.add(p, K2, p)
+    np.multiply(p, xi, p)
+    np.add(p, K1, p)
+    np.multiply(p, xi, p)
+    np.add(p, K0, p)
+    return p
 
 
 def damping_normaliser(alpha: np.ndarray) -> np.ndarray:
@@ -322,15 +340,10 @@ class AmplitudeDependent(CableModel):
         np.copyto(idx, u, casting="unsafe")             # truncation = floor (u >= 0)
         np.take(self._tab, self._idx_flat, axis=1, out=self._vals, mode="clip")
         K0, K1, K2, K3, Sq, alpha = self._cols
-        # polynomial spring part (Horner)
+        # polynomial spring part: the backbone
         xi, p = self._xi, self._p
         sub(x, self.params["x_center"], xi)
-        mul(K3, xi, p)
-        add(p, K2, p)
-        mul(p, xi, p)
-        add(p, K1, p)
-        mul(p, xi, p)
-        add(p, K0, p)
+        backbone(xi, K0, K1, K2, K3, out=p)
         # damping S_a q / A (|v| / (A w))^alpha sgn(v), with |v| / (A w) = |dx| T_half / (dt pi A)
         np.absolute(dx, r)
         mul(r, T, r)
@@ -343,6 +356,40 @@ class AmplitudeDependent(CableModel):
         add(p, r, self.force)
         np.copyto(state.x_prev, x)
         return self.force
+
+    def backbone_force(self, x, amplitude, *, interpolation: str, lane: int = 0) -> np.ndarray:
+        """The backbone (elastic, rate-independent part of eq 8) F_el(x; A) [N] of lane
+        ``lane``: :func:`backbone` at xi = x - x_center with K0..K3 read at the amplitude
+        ``amplitude`` [m] (broadcast to x), A held at the table's range.
+
+        ``x`` [m] (..., cables). ``interpolation`` says how K0..K3 are read at A, explicitly,
+        because the two users deliberately differ:
+
+        * ``"nearest"``: the nearest point of the uniform grid the tables are resampled on
+          at build time, exactly what :meth:`step` reads (fixed-time lookup);
+        * ``"linear"``: linear interpolation in the raw tables (:attr:`tables` on
+          :attr:`amplitude_grid`). The digital twin's truth uses this
+          (:class:`cablesvc.simulate.elastic.ElasticCurve`): its truth is meant to differ
+          slightly from the model identification fits, and its numbers must not move.
+        """
+        x = np.asarray(x, dtype=np.float64)
+        A = np.broadcast_to(np.asarray(amplitude, dtype=np.float64), x.shape)
+        xi = x - self.params["x_center"][lane]
+        out = np.zeros(x.shape)
+        g = self.amplitude_grid
+        for i in range(self.shape[1]):
+            Ai = A[..., i]
+            if interpolation == "linear":
+                rows = [self.tables[c][lane, i] for c in ("K0", "K1", "K2", "K3")]
+                K = [np.interp(Ai, g, r) if g.size > 1 else np.full(Ai.shape, r[0]) for r in rows]
+            elif interpolation == "nearest":          # the index arithmetic of step()
+                u = np.maximum(Ai, self._amin) * self._inv_da - self._shift[lane, i]
+                idx = np.minimum(u, self._umax[lane, i]).astype(np.intp)
+                K = [self._tab[j, idx] for j in range(4)]
+            else:
+                raise ValueError(f"backbone_force: interpolation must be 'nearest' or 'linear', got {interpolation!r}")
+            out[..., i] = backbone(xi[..., i], *K)
+        return out
 
     @staticmethod
     def amplitude(state: "AmplitudeState") -> np.ndarray:

@@ -36,6 +36,7 @@ from typing import Any, Optional
 import numba
 import numpy as np
 
+from cablesvc.models.catenary import SAG_NEWTON, irvine_tension
 from cablesvc.models.reversal import reversal_amplitude
 
 __all__ = [
@@ -592,13 +593,6 @@ class AsymmetricHardening(Term):
         return s.x[:, c] - np.mean(s.x[:, c])
 
 
-#: Newton steps of the sag equation, offline and live (a fixed count: the live kernel runs
-#: in fixed time). From f = max(f0, cbrt(c), 1) the iterates of the concave, increasing
-#: f - f0 - c / f^2 rise monotonically to the root; 8 steps reach it to ~1e-12 relative
-#: for sag up to the tension itself (``tests/test_live_terms.py``).
-SAG_NEWTON = 8
-
-
 class Sag(Term):
     """Sag at low tension (Irvine's taut-cable approximation): a cable of weight per length
     w hanging over the chord L under tension f is longer than the chord by
@@ -626,30 +620,9 @@ class Sag(Term):
     def grid(self, s):
         return [{"q": q} for q in np.r_[0.0, np.geomspace(1.0, 1e8, 25)]]
 
-    @staticmethod
-    def solve(f0: np.ndarray, cc: np.ndarray, floor: float = 1.0, out: Optional[np.ndarray] = None,
-              tmp: Optional[np.ndarray] = None) -> np.ndarray:
-        """Root f >= f0 of f - f0 - cc / f^2 = 0 (cc [N^3] >= 0), f floored at ``floor`` N,
-        by :data:`SAG_NEWTON` Newton steps (into ``out``, with the scratch ``tmp``)."""
-        shape = np.broadcast_shapes(np.shape(f0), np.shape(cc))
-        f = np.empty(shape) if out is None else out
-        w = np.empty((2,) + shape) if tmp is None else tmp
-        a, b = w[0], w[1]
-        np.cbrt(cc, out=a)
-        np.maximum(f0, a, out=f)
-        np.maximum(f, floor, out=f)
-        for _ in range(SAG_NEWTON):
-            np.multiply(f, f, out=a)                   # f^2
-            np.divide(cc, a, out=b)                    # cc / f^2
-            np.subtract(f, f0, out=a)
-            np.subtract(a, b, out=a)                   # g = f - f0 - cc/f^2
-            np.divide(b, f, out=b)
-            np.multiply(b, 2.0, out=b)
-            np.add(b, 1.0, out=b)                      # g' = 1 + 2 cc / f^3
-            np.divide(a, b, out=a)
-            np.subtract(f, a, out=f)
-            np.maximum(f, floor, out=f)
-        return f
+    #: the tension under sag (:func:`cablesvc.models.catenary.irvine_tension`, by default
+    #: :data:`SAG_NEWTON` Newton steps from max(f0, cbrt(cc), 1 N), fixed time)
+    solve = staticmethod(irvine_tension)
 
     def fixed_part(self, g, R, h, out):
         cc = np.empty(np.shape(out))

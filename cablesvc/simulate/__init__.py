@@ -4,9 +4,11 @@
 
 * :mod:`~cablesvc.simulate.scenarios`: what the robot does (:data:`SCENARIOS`: ``hold-sine``,
   ``hold-triangle``, ``hold-trapezoid`` as in the experiment of 002 Sec 4, ``trajectory``).
-* :mod:`~cablesvc.simulate.physics`: how the measured forces are made (:class:`TruthConfig`:
-  base cable model, extra physics :data:`EFFECTS` ``pulley``, ``creep``, ``temperature``,
-  ``viscous``, ``deadtime``, ``sag``, ``offset_gain``, sensor noise).
+* :mod:`~cablesvc.simulate.truth`: how the measured forces are made (:class:`TruthConfig`:
+  base cable model, extra physics, sensor noise); :mod:`~cablesvc.simulate.effects` the
+  extra physics :data:`EFFECTS` ``pulley``, ``creep``, ``temperature``, ``viscous``,
+  ``deadtime``, ``sag``, ``offset_gain``; :mod:`~cablesvc.simulate.elastic` the base
+  model's elastic curve the twin's controller inverts.
 * :mod:`~cablesvc.simulate.twin`: runs them and builds the :class:`~cablesvc.recording.Recording`;
   its metadata key ``truth`` is the benchmark's answer key, which tools under test must not read.
 
@@ -17,24 +19,21 @@ Example::
     rec = simulate_recording("ipanema3", "trajectory", "traj.mcap", truth=truth, duration=30, seed=1)
 """
 
-from cablesvc.simulate.physics import (
+from cablesvc.errors import SimulationError
+from cablesvc.simulate.effects import (
     EFFECTS,
     Creep,
     Deadtime,
     Effect,
-    ElasticCurve,
     OffsetGain,
     Pulley,
     Sag,
-    SimulationError,
     Temperature,
-    TruthConfig,
-    TruthModel,
-    TruthOutput,
     Viscous,
     effect_from_spec,
     list_effects,
 )
+from cablesvc.simulate.elastic import ElasticCurve
 from cablesvc.simulate.scenarios import (
     DEFAULT_AMPLITUDES,
     SCENARIOS,
@@ -42,6 +41,7 @@ from cablesvc.simulate.scenarios import (
     ScenarioPlan,
     tension_distribution,
 )
+from cablesvc.simulate.truth import TruthConfig, TruthModel, TruthOutput
 from cablesvc.simulate.twin import TRUTH_NOTICE, Ambient, TwinRun, simulate_recording, simulate_twin
 
 __all__ = [

@@ -36,7 +36,8 @@ from cablesvc.kinematics import (
     rotvec_to_quat,
     structure_matrix,
 )
-from cablesvc.simulate.physics import ElasticCurve, SimulationError
+from cablesvc.errors import SimulationError
+from cablesvc.simulate.elastic import ElasticCurve
 
 __all__ = [
     "DEFAULT_AMPLITUDES",

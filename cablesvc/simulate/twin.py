@@ -7,7 +7,7 @@ tests and benchmarks.
 What a recording from the twin holds (recording format 1, one tick per 1/rate s, t from 0):
 the commanded pose (the platform is assumed to be exactly there: position control with a
 rigid platform, no elastostatic deflection), the motor lengths l(pose) - x, the measured
-forces of the truth model (:mod:`cablesvc.simulate.physics`) with sensor noise, and the
+forces of the truth model (:mod:`cablesvc.simulate.truth`) with sensor noise, and the
 ambient temperature (always written, whether or not the ``temperature`` effect is on, so
 that the channel itself gives nothing away).
 
@@ -39,7 +39,8 @@ from cablesvc.config.robot import Robot, load_robot
 from cablesvc.jsonable import jsonable
 from cablesvc.kinematics import inverse_kinematics
 from cablesvc.recording import Recording, write_recording
-from cablesvc.simulate.physics import SimulationError, TruthConfig, TruthModel, TruthOutput
+from cablesvc.errors import SimulationError
+from cablesvc.simulate.truth import TruthConfig, TruthModel, TruthOutput
 from cablesvc.simulate.scenarios import SCENARIOS, ScenarioContext, ScenarioPlan
 
 __all__ = ["Ambient", "TRUTH_NOTICE", "TwinRun", "simulate_recording", "simulate_twin"]

@@ -1,198 +1,34 @@
-"""Truth model of the digital twin: a base cable model plus switchable extra physics.
+"""The switchable extra physics of the twin's truth model (:data:`EFFECTS`).
 
-The twin (:mod:`cablesvc.simulate.twin`) plays a controller that commands elongations from
-a *nominal* cable model. The forces it records come from the *truth* model defined here:
-
-    truth force = force effects( base model( input effects(elongation) ) )
-    measured    = sensor effects(truth force) + noise
-
-* The **base model** is any :class:`~cablesvc.config.params.ModelParams` (a parameter file),
-  by default the nominal amplitude-dependent hysteresis model of
-  :func:`~cablesvc.config.params.default_params` for the robot's E*A and its cable lengths at
-  the home pose (``base_model="amplitude"``), or the non-hysteretic linear elastic model
-  (``base_model="linear"``: a recording *without* hysteresis; the opposite case, a recording
-  *with* hysteresis that a linear model misses, is the default).
-* **Effects** are small classes (:data:`EFFECTS`), each with a ``magnitude`` (its one
-  headline number, unit in its docstring) and the ``cables`` it acts on (default: all).
-  A magnitude of 0 switches an effect off exactly; on the other cables it is exactly the
-  identity. The effect names are the API that benchmarks use as concealed labels.
-
-Per tick the truth model runs these stages, vectorised over the cables (arrays ``(m,)``);
-the order is fixed by each effect's stage, not by the order they are listed in:
-
-1. ``input``       ``deadtime``: the elongation the cable sees is the one of tau seconds ago.
-2. (rates)         ``v_in`` = rate of that elongation [m/s]; ``v_slide`` = speed the cable is
-                   hauled in over the pulley, -d(motor_length)/dt [m/s].
-3. base model      ``model.step(state, x_in, dt, l0=motor_length)``.
-4. ``force``       ``sag``, ``creep``, ``temperature``, ``pulley``, ``viscous`` (in this
-                   order): the true cable force. Effects that change the cable's length
-                   (creep, sag) act here, linearised with the nominal stiffness k = EA/L,
-                   not through the base model's elongation: the amplitude model reacts to
-                   sub-micrometre elongation changes with spurious reversals (see Sag).
-5. ``sensor``      ``offset_gain``: what the force sensor makes of it; then Gaussian noise
-                   of ``noise_std`` N (drawn once for the whole run from the seed).
+Each effect is a small class with a ``magnitude`` (its one headline number, unit in its
+docstring) and the ``cables`` it acts on (default: all). A magnitude of 0 switches an
+effect off exactly; on the other cables it is exactly the identity. The effect names are
+the API that benchmarks use as concealed labels; :func:`effect_from_spec` parses the CLI's
+``NAME[:MAGNITUDE][@CABLES]``. :class:`~cablesvc.simulate.truth.TruthModel` runs them per
+tick, in the order of their stage (:data:`STAGES`), on a :class:`TickState`.
 
 Units: SI (m, s, N, K, rad) throughout.
 """
 
 from __future__ import annotations
 
-import copy
 import math
 import re
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from typing import Any, ClassVar, Optional
 
 import numpy as np
 
-from cablesvc.config.params import ModelParams, default_params
-from cablesvc.config.robot import RobotGeometry
-from cablesvc.models import MODELS, AmplitudeDependent, CableModel
+from cablesvc.errors import SimulationError
+from cablesvc.models.catenary import irvine_tension
 
 __all__ = [
-    "EFFECTS",
-    "STAGES",
-    "Creep",
-    "Deadtime",
-    "Effect",
-    "ElasticCurve",
-    "OffsetGain",
-    "Pulley",
-    "RunInfo",
-    "Sag",
-    "SimulationError",
-    "Temperature",
-    "TickState",
-    "TruthConfig",
-    "TruthModel",
-    "TruthOutput",
-    "Viscous",
-    "effect_from_spec",
-    "list_effects",
+    "EFFECTS", "STAGES", "Creep", "Deadtime", "Effect", "OffsetGain", "Pulley", "RunInfo", "Sag", "Temperature",
+    "TickState", "Viscous", "effect_from_spec", "list_effects", "stage_order",
 ]
 
 #: Effect stages in the order the truth model applies them each tick.
 STAGES = ("input", "force", "sensor")
-#: Base models a :class:`TruthConfig` can ask for by name when it has no ``base`` params.
-BASE_MODELS = tuple(name for name, cls in MODELS.items() if cls.has_nominal)
-
-
-class SimulationError(ValueError):
-    """A twin setting that cannot be simulated (bad effect spec, cable, scenario option...)."""
-
-
-# --------------------------------------------------------------------------------------
-# elastic part of a base model (what the controller's nominal model inverts)
-# --------------------------------------------------------------------------------------
-
-
-class ElasticCurve:
-    """The elastic (rate-independent, hysteresis-free) force of a base model, F_el(x) [N].
-
-    This is what the twin's controller uses to turn a wanted force into a commanded
-    elongation (its nominal model: the truth base model without hysteresis and effects).
-
-    * Amplitude model (002 eq 8): ``K0 + K1 xi + K2 xi^2 + K3 xi^3`` with ``xi = x - x_center``
-      and K0..K3 interpolated linearly in the amplitude tables at the amplitude A [m]
-      (clamped to the table range, as the model does). Without an amplitude, the amplitude
-      the model assumes at rest (``amplitude_init``) is used.
-    * Any other model: the model's force at rest at x, averaged over both directions of
-      motion (so the friction-like part of the polynomial model cancels; Bouc-Wen starts
-      with z = 0). The linear model gets ``l0 = length - x`` when ``length`` is given.
-
-    Arrays broadcast over a leading batch axis; the last axis is the cable axis (m,).
-    """
-
-    def __init__(self, params: ModelParams, n_cables: int):
-        self.params = params
-        self.n_cables = int(n_cables)
-        self._model = params.build(self.n_cables, 1)
-        self.is_amplitude = isinstance(self._model, AmplitudeDependent)
-        if self.is_amplitude:
-            mdl = self._model
-            self.amplitude_grid = np.array(mdl.amplitude_grid)
-            self._K = [np.array(mdl.tables[c][0]) for c in ("K0", "K1", "K2", "K3")]  # (m, nA)
-            self._x_center = np.array(mdl.params["x_center"][0])
-            self.rest_amplitude: Optional[np.ndarray] = np.array(mdl.params["amplitude_init"][0])
-            self.max_amplitude: Optional[float] = float(self.amplitude_grid[-1])
-        else:
-            self.amplitude_grid = None
-            self.rest_amplitude = None
-            self.max_amplitude = None
-        self._batch_models: dict[int, CableModel] = {}
-
-    # -- evaluation ----------------------------------------------------------------
-    def force(self, x: Any, amplitude: Any = None, length: Any = None) -> np.ndarray:
-        """Elastic force [N] at elongation ``x`` [m] (..., m); ``amplitude`` [m] scalar or
-        broadcastable to x (amplitude model only); ``length`` [m] the geometric length l, so
-        that the unstretched length is ``l0 = l - x`` (linear model only)."""
-        x = np.asarray(x, dtype=np.float64)
-        if self.is_amplitude:
-            A = self.rest_amplitude if amplitude is None else np.asarray(amplitude, dtype=np.float64)
-            A = np.broadcast_to(A, x.shape)
-            xi = x - self._x_center
-            out = np.zeros(x.shape)
-            g = self.amplitude_grid
-            for i in range(self.n_cables):
-                Ai = A[..., i]
-                Ki = [np.interp(Ai, g, K[i]) if g.size > 1 else np.full(Ai.shape, K[i][0]) for K in self._K]
-                xii = xi[..., i]
-                out[..., i] = ((Ki[3] * xii + Ki[2]) * xii + Ki[1]) * xii + Ki[0]
-            return out
-        return self._force_at_rest(x, length)
-
-    def _force_at_rest(self, x: np.ndarray, length: Any) -> np.ndarray:
-        m = self.n_cables
-        flat = x.reshape(-1, m)
-        l0 = None
-        if length is not None:
-            l0 = (np.broadcast_to(np.asarray(length, dtype=np.float64), x.shape) - x).reshape(-1, m)
-        out = np.empty_like(flat)
-        chunk = 4096
-        for a in range(0, flat.shape[0], chunk):
-            xb = flat[a:a + chunk]
-            B = xb.shape[0]
-            model = self._batch_models.get(B)
-            if model is None:
-                model = self.params.build(m, B)
-                self._batch_models[B] = model
-            lb = None if l0 is None else l0[a:a + chunk]
-            acc = np.zeros((B, m))
-            for direction in (1.0, -1.0):
-                st = model.create_state(xb)
-                if hasattr(st, "direction"):
-                    st.direction[...] = direction
-                acc += model.step(st, xb, 1e-3, lb)
-            out[a:a + chunk] = 0.5 * acc
-        return out.reshape(x.shape)
-
-    def stiffness(self, x: Any, amplitude: Any = None, length: Any = None, h: float = 1e-7) -> np.ndarray:
-        """dF_el/dx [N/m] by central differences of step ``h`` [m]."""
-        x = np.asarray(x, dtype=np.float64)
-        return (self.force(x + h, amplitude, length) - self.force(x - h, amplitude, length)) / (2 * h)
-
-    def elongation(self, force: Any, amplitude: Any = None, length: Any = None,
-                   tol: float = 1e-9, max_iter: int = 60) -> np.ndarray:
-        """Elongation x [m] with ``force(x, amplitude, length) == force`` [N] (Newton on a
-        monotone curve, vectorised). Raises SimulationError when it does not converge (a
-        force the elastic curve cannot reach)."""
-        F = np.asarray(force, dtype=np.float64)
-        if F.shape[-1] != self.n_cables:
-            raise SimulationError(f"elongation(): last axis must be the {self.n_cables} cables, got {F.shape}")
-        k0 = self.stiffness(np.zeros(F.shape) + 1e-3, amplitude, length)
-        x = np.where(k0 > 0, F / np.where(k0 > 0, k0, 1.0), 1e-3)
-        scale = np.maximum(1.0, np.abs(F))
-        for _ in range(max_iter):
-            r = self.force(x, amplitude, length) - F
-            if np.all(np.abs(r) <= tol * scale):
-                return x
-            k = self.stiffness(x, amplitude, length)
-            if np.any(~np.isfinite(k)) or np.any(k <= 0):
-                break
-            x = x - r / k
-        raise SimulationError(
-            f"cannot find the elongation for forces {np.min(F):.3g}..{np.max(F):.3g} N on the base "
-            f"model's elastic curve ({self.params.model}); is the model's stiffness positive there?")
 
 
 # --------------------------------------------------------------------------------------
@@ -234,6 +70,7 @@ class TickState:
             setattr(self, s, None)
 
 
+
 # --------------------------------------------------------------------------------------
 # effects
 # --------------------------------------------------------------------------------------
@@ -264,6 +101,17 @@ class Effect:
 
     magnitude: Optional[float] = None
     cables: Optional[tuple[int, ...]] = None
+
+    def __init_subclass__(cls, **header: Any) -> None:
+        """An effect states its header in its class line, ``class Sag(Effect, name="sag",
+        stage="force", unit="N/m", default_magnitude=0.2, summary=...)``: the class
+        attributes above (those not given keep what the class body or its base set)."""
+        unknown = set(header) - {"name", "stage", "unit", "default_magnitude", "summary", "clocked"}
+        if unknown:
+            raise TypeError(f"effect {cls.__name__}: unknown header field(s) {sorted(unknown)}")
+        super().__init_subclass__()
+        for key, value in header.items():
+            setattr(cls, key, value)
 
     def __post_init__(self) -> None:
         if self.magnitude is None:
@@ -346,17 +194,12 @@ class Effect:
 
 
 @dataclass(eq=False)
-class Deadtime(Effect):
+class Deadtime(Effect, name="deadtime", stage="input", unit="s", default_magnitude=0.05,
+               summary="force follows the elongation of tau seconds ago; magnitude tau [s]"):
     """Dead time between elongation and force: the force follows the elongation of
     ``tau`` seconds ago, x_in(t) = x(t - tau) (linear interpolation between ticks; before
     t = tau the first elongation is held). Models controller/sensor delay (002 Sec 4 warns
     that commanded lengths carry dead time). magnitude = tau [s], >= 0."""
-
-    name: ClassVar[str] = "deadtime"
-    stage: ClassVar[str] = "input"
-    unit: ClassVar[str] = "s"
-    default_magnitude: ClassVar[float] = 0.05
-    summary: ClassVar[str] = "force follows the elongation of tau seconds ago; magnitude tau [s]"
 
     def check(self) -> None:
         if self.magnitude < 0:
@@ -388,7 +231,8 @@ class Deadtime(Effect):
 
 
 @dataclass(eq=False)
-class Creep(Effect):
+class Creep(Effect, name="creep", stage="force", clocked=True, unit="N", default_magnitude=2.0,
+            summary="settling + creep lengthen the cable; magnitude = force drop at the end [N]"):
     """Creep and settling of the cable over the recording (002 Fig 6: the force drifted by
     0.4 N against the identified model after a few days). The unstretched length grows by
 
@@ -401,13 +245,6 @@ class Creep(Effect):
     stiffness, an artefact of its amplitude estimate, not creep. magnitude = D [N], the
     force drop k delta_l at the end of the recording; ``settle_fraction`` of it comes from
     the exponential part, with ``tau = tau_fraction`` x duration. Monotone in time."""
-
-    name: ClassVar[str] = "creep"
-    stage: ClassVar[str] = "force"
-    clocked: ClassVar[bool] = True
-    unit: ClassVar[str] = "N"
-    default_magnitude: ClassVar[float] = 2.0
-    summary: ClassVar[str] = "settling + creep lengthen the cable; magnitude = force drop at the end [N]"
 
     settle_fraction: float = 0.6
     tau_fraction: float = 0.2
@@ -437,7 +274,9 @@ class Creep(Effect):
 
 
 @dataclass(eq=False)
-class Sag(Effect):
+class Sag(Effect, name="sag", stage="force", unit="N/m", default_magnitude=0.2,
+          summary=("sag: cable longer than its chord by w^2 L^3/(24 F^2), matters at low tension; "
+                   "magnitude = weight per length w [N/m]")):
     """Sag of a cable of weight per length w [N/m] (Irvine's taut-cable approximation): a
     cable hanging over a chord L under tension F is longer than the chord by
 
@@ -457,13 +296,6 @@ class Sag(Effect):
     the sub-micrometre tick-to-tick changes of s (spurious reversals and force jumps of
     several %). L is the free length from the pulley to the platform. magnitude = w [N/m]
     (6 mm Dyneema: about 0.2 N/m)."""
-
-    name: ClassVar[str] = "sag"
-    stage: ClassVar[str] = "force"
-    unit: ClassVar[str] = "N/m"
-    default_magnitude: ClassVar[float] = 0.2
-    summary: ClassVar[str] = ("sag: cable longer than its chord by w^2 L^3/(24 F^2), matters at low tension; "
-                              "magnitude = weight per length w [N/m]")
 
     f_floor: float = 1.0
     max_iter: int = 50
@@ -485,35 +317,26 @@ class Sag(Effect):
         return self.magnitude ** 2 * np.asarray(L, dtype=np.float64) ** 3 / (24.0 * F * F)
 
     def solve(self, f_base: np.ndarray, L: np.ndarray) -> np.ndarray:
-        """Tension F [N] with F = f_base + k s(F), per cable."""
+        """Tension F [N] with F = f_base + k s(F), per cable: Newton from max(f_base,
+        f_floor) until the steps fall below 1e-12 relative, at most ``max_iter`` steps
+        (:func:`cablesvc.models.catenary.irvine_tension`, the solve the sag term uses too)."""
         kc = self._k * self.magnitude ** 2 * np.asarray(L, dtype=np.float64) ** 3 / 24.0
-        F = np.maximum(f_base, self.f_floor)
-        for _ in range(int(self.max_iter)):
-            # h(F) = F - f_base - kc / F^2: increasing and concave, Newton from the left converges
-            F2 = F * F
-            step = (F - f_base - kc / F2) / (1.0 + 2.0 * kc / (F2 * F))
-            F = np.maximum(F - step, self.f_floor)
-            if np.all(np.abs(step) <= 1e-12 * np.maximum(1.0, F)):
-                break
-        return F
+        return irvine_tension(np.asarray(f_base, dtype=np.float64), kc, self.f_floor, steps=int(self.max_iter),
+                              cbrt_start=False, tol=1e-12)
 
     def apply(self, tick, value):
         return self.solve(value, tick.free_length)
 
 
 @dataclass(eq=False)
-class Temperature(Effect):
+class Temperature(Effect, name="temperature", stage="force", unit="1/K", default_magnitude=-0.01,
+                  summary="stiffness k(T) = k (1 + c_T (T - T_ref)); magnitude = c_T [1/K]"):
     """Temperature-dependent stiffness: k(T) = k (1 + c_T (T - T_ref)). The whole
     constitutive law of the base model scales with the modulus, so the force becomes
     F (1 + c_T (T - T_ref)) with T the temperature the twin records (its ambient profile)
     and ``T_ref`` [deg C] the temperature the model holds for. HMPE (Dyneema) softens when
     warm: c_T < 0. magnitude = c_T [1/K]."""
 
-    name: ClassVar[str] = "temperature"
-    stage: ClassVar[str] = "force"
-    unit: ClassVar[str] = "1/K"
-    default_magnitude: ClassVar[float] = -0.01
-    summary: ClassVar[str] = "stiffness k(T) = k (1 + c_T (T - T_ref)); magnitude = c_T [1/K]"
 
     T_ref: float = 21.0
 
@@ -522,7 +345,9 @@ class Temperature(Effect):
 
 
 @dataclass(eq=False)
-class Pulley(Effect):
+class Pulley(Effect, name="pulley", stage="force", unit="-", default_magnitude=0.01,
+             summary=("pulley bearing friction mu F_b tanh(v/v_s), F_b = 2 f sin(alpha/2) (eq 19), "
+                      "and stiffness x (1 + kappa (alpha - alpha_ref)); magnitude = mu [-]")):
     """Redirection pulley: bearing friction and a wrap-angle dependent stiffness (002 Sec 4,
     Figs 9-11, eq 19).
 
@@ -541,13 +366,6 @@ class Pulley(Effect):
     force-elongation loop widens with the wrap angle, as Fig 11 of 002 shows). Acts only on
     cables with a pulley (default: all of those; naming a cable without one is an error).
     magnitude = mu [-]."""
-
-    name: ClassVar[str] = "pulley"
-    stage: ClassVar[str] = "force"
-    unit: ClassVar[str] = "-"
-    default_magnitude: ClassVar[float] = 0.01
-    summary: ClassVar[str] = ("pulley bearing friction mu F_b tanh(v/v_s), F_b = 2 f sin(alpha/2) (eq 19), "
-                              "and stiffness x (1 + kappa (alpha - alpha_ref)); magnitude = mu [-]")
 
     v_s: float = 5e-4
     stiffness_ratio: float = 2.0
@@ -582,32 +400,22 @@ class Pulley(Effect):
 
 
 @dataclass(eq=False)
-class Viscous(Effect):
+class Viscous(Effect, name="viscous", stage="force", unit="N s/m", default_magnitude=500.0,
+              summary="viscous force c_v * dx/dt; magnitude = c_v [N s/m]"):
     """Viscous rate dependence: F <- F + c_v v with v the elongation rate [m/s] (of the
     elongation after dead time). magnitude = c_v [N s/m]."""
-
-    name: ClassVar[str] = "viscous"
-    stage: ClassVar[str] = "force"
-    unit: ClassVar[str] = "N s/m"
-    default_magnitude: ClassVar[float] = 500.0
-    summary: ClassVar[str] = "viscous force c_v * dx/dt; magnitude = c_v [N s/m]"
 
     def apply(self, tick, value):
         return value + self.magnitude * tick.v_in
 
 
 @dataclass(eq=False)
-class OffsetGain(Effect):
+class OffsetGain(Effect, name="offset_gain", stage="sensor", unit="N", default_magnitude=2.0,
+                 summary="sensor error measured = (1 + o/600 N) F + o; magnitude = offset o [N]"):
     """Force-sensor offset and gain error: measured = (1 + g) F + o. magnitude = o [N];
     the gain error is tied to it, g = o * ``gain_per_newton`` (default 1/600 per N, i.e.
     g = o / 600 N: a 6 N offset comes with a +1 % gain error). Only the measurement
     changes, not the cable."""
-
-    name: ClassVar[str] = "offset_gain"
-    stage: ClassVar[str] = "sensor"
-    unit: ClassVar[str] = "N"
-    default_magnitude: ClassVar[float] = 2.0
-    summary: ClassVar[str] = "sensor error measured = (1 + o/600 N) F + o; magnitude = offset o [N]"
 
     gain_per_newton: float = 1.0 / 600.0
 
@@ -626,6 +434,13 @@ EFFECTS: dict[str, type[Effect]] = {
 }
 _ORDER = {"input": 0, "force": 1, "sensor": 2}
 _WITHIN = {"deadtime": 0, "sag": 0, "creep": 1, "temperature": 2, "pulley": 3, "viscous": 4, "offset_gain": 0}
+
+
+def stage_order(effect: Effect) -> tuple[int, int]:
+    """Sort key of the order the truth model applies effects in: their stage
+    (:data:`STAGES`), then a fixed order within it (force stage: sag, creep, temperature,
+    pulley, viscous)."""
+    return _ORDER[effect.stage], _WITHIN.get(effect.name, 9)
 
 
 def list_effects() -> list[str]:
@@ -683,163 +498,3 @@ def effect_from_spec(spec: str, n_cables: Optional[int] = None) -> Effect:
         except SimulationError as e:
             raise SimulationError(f"effect spec {spec!r}: {e}") from None
     return EFFECTS[name](magnitude=mag, cables=cables)
-
-
-# --------------------------------------------------------------------------------------
-# truth configuration and model
-# --------------------------------------------------------------------------------------
-
-
-@dataclass
-class TruthConfig:
-    """How the twin's measured forces are made.
-
-    ``base``: parameters of the base cable model (None: nominal parameters of ``base_model``
-    from :func:`default_params` for the robot's E*A and its cable lengths at the home pose);
-    ``base_model``: "amplitude" (hysteretic, default) or "linear" (no hysteresis);
-    ``effects``: extra physics (:data:`EFFECTS`); ``noise_std``: Gaussian force-sensor noise
-    [N]; ``seed``: seed of the noise (None: the simulation's seed).
-    """
-
-    base: Optional[ModelParams] = None
-    effects: list[Effect] = field(default_factory=list)
-    noise_std: float = 0.1
-    seed: Optional[int] = None
-    base_model: str = "amplitude"
-
-    def __post_init__(self) -> None:
-        self.effects = list(self.effects)
-        for e in self.effects:
-            if not isinstance(e, Effect):
-                raise SimulationError(f"TruthConfig.effects: {e!r} is not an Effect (use effect_from_spec)")
-        if not (math.isfinite(self.noise_std) and self.noise_std >= 0):
-            raise SimulationError(f"TruthConfig.noise_std must be >= 0 N, got {self.noise_std!r}")
-        if self.base is None and self.base_model not in BASE_MODELS:
-            raise SimulationError(f"TruthConfig.base_model must be one of {BASE_MODELS}, got {self.base_model!r}")
-
-
-@dataclass
-class TruthOutput:
-    """Result of :meth:`TruthModel.run`, arrays (N, m) [N] / [m].
-
-    ``measured``: what the force sensors report (sensor effects and noise included);
-    ``force``: the true cable force (all physical effects, no sensor error, no noise);
-    ``base_force``: the base model's output (before the force-stage effects);
-    ``x_in``: the elongation the base model was given (after dead time) [m].
-    """
-
-    measured: np.ndarray
-    force: np.ndarray
-    base_force: np.ndarray
-    x_in: np.ndarray
-
-
-class TruthModel:
-    """The base model plus the bound effects for one robot; :meth:`run` simulates a run.
-
-    ``cable_length`` (m,) [m]: typical free length per cable (the twin uses the IK length
-    at the home pose) for the nominal parameters and the nominal stiffness EA/L.
-    """
-
-    def __init__(self, config: TruthConfig, geom: RobotGeometry, cable_length: np.ndarray):
-        self.config = config
-        self.geom = geom
-        self.n_cables = m = int(geom.n_cables)
-        self.cable_length = np.asarray(cable_length, dtype=np.float64).reshape(m)
-        self.params = config.base if config.base is not None else default_params(
-            geom.ea, self.cable_length, config.base_model)
-        self.params.build(m, 1)  # fail early, naming the parameter file
-        self.elastic = ElasticCurve(self.params, m)
-        self.stiffness = np.asarray(geom.ea, dtype=np.float64) / self.cable_length
-        self.effects: list[Effect] = []
-
-    def describe(self) -> dict[str, Any]:
-        """Ground truth as JSON-able data (base model, noise, effects with their cables)."""
-        p = self.params
-        return {
-            "base": {"model": p.model, "source": "nominal" if self.config.base is None else p.source,
-                     "hysteresis": MODELS[p.model].hysteretic},
-            "noise_std": self.config.noise_std,
-            "effects": [e.to_dict() for e in (self.effects or self.config.effects)],
-        }
-
-    def check_effects(self) -> None:
-        """Raise SimulationError now for effects that cannot act on this robot (cables out of
-        range, a pulley effect without pulleys), before any simulation work."""
-        m = self.n_cables
-        run = RunInfo(n_cables=m, dt=1e-3, n_ticks=2, duration=1.0, stiffness=self.stiffness,
-                      has_pulley=np.asarray(self.geom.has_pulley, dtype=bool))
-        for e in self.config.effects:
-            copy.deepcopy(e).bind(run)
-
-    def run(self, *, t: np.ndarray, dt: float, elongation: np.ndarray, motor_length: np.ndarray,
-            wrap_angle: np.ndarray, free_length: np.ndarray, temperature: np.ndarray,
-            rng: np.random.Generator) -> TruthOutput:
-        """Simulate N ticks (one Python loop over ticks, numpy over cables).
-
-        ``t`` (N,) [s], ``dt`` [s] the tick period (the base model gets 0 at the first tick,
-        as :func:`cablesvc.models.simulate` does), ``elongation`` (N,m) x = l - motor_length
-        [m], ``motor_length`` (N,m) [m], ``wrap_angle`` (N,m) [rad], ``free_length`` (N,m)
-        [m], ``temperature`` (N,) [deg C]; ``rng`` draws the sensor noise.
-        """
-        x = np.asarray(elongation, dtype=np.float64)
-        N, m = x.shape
-        run = RunInfo(n_cables=m, dt=float(dt), n_ticks=N, duration=float(t[-1] - t[0]) if N > 1 else float(dt),
-                      stiffness=self.stiffness, has_pulley=np.asarray(self.geom.has_pulley, dtype=bool),
-                      cable_names=tuple(self.geom.cable_names))
-        effects = [copy.deepcopy(e) for e in self.config.effects]
-        for e in effects:
-            e.bind(run)
-        self.effects = effects
-        effects = sorted(effects, key=lambda e: (_ORDER[e.stage], _WITHIN.get(e.name, 9)))
-        act = [e for e in effects if e.active]
-        by_stage = {s: [e for e in act if e.stage == s] for s in STAGES}
-        need_v_in = any(e.name == "viscous" for e in act)
-
-        model = self.params.build(m, 1)
-        measured = np.empty((N, m))
-        force = np.empty((N, m))
-        base_force = np.empty((N, m))
-        x_in = np.empty((N, m))
-        tick = TickState()
-        tick.dt = float(dt)
-        xin = np.empty(m)
-        fb = np.empty(m)
-        zero = np.zeros(m)
-        state = None
-        ml = np.asarray(motor_length, dtype=np.float64)
-        for k in range(N):
-            tick.k = k
-            tick.t = float(t[k])
-            tick.x = x[k]
-            tick.motor_length = ml[k]
-            tick.wrap_angle = wrap_angle[k]
-            tick.free_length = free_length[k]
-            tick.temperature = float(temperature[k])
-            np.copyto(xin, x[k])
-            for e in by_stage["input"]:
-                e.step(tick, xin)
-            x_in[k] = xin
-            xk = x_in[k:k + 1]                      # (1, m): the model's (lanes, cables)
-            tick.x_in = x_in[k]
-            if k == 0:
-                tick.v_in = zero
-                tick.v_slide = zero
-            else:
-                if need_v_in:
-                    tick.v_in = (x_in[k] - x_in[k - 1]) / dt
-                tick.v_slide = (ml[k - 1] - ml[k]) / dt
-            if state is None:
-                state = model.create_state(xk)
-            f = model.step(state, xk, float(dt) if k else 0.0, ml[k:k + 1])
-            base_force[k] = f[0]
-            np.copyto(fb, f[0])
-            for e in by_stage["force"]:
-                e.step(tick, fb)
-            force[k] = fb
-            for e in by_stage["sensor"]:
-                e.step(tick, fb)
-            measured[k] = fb
-        if self.config.noise_std > 0:
-            measured += self.config.noise_std * rng.standard_normal((N, m))
-        return TruthOutput(measured=measured, force=force, base_force=base_force, x_in=x_in)
