@@ -420,7 +420,7 @@ def test_per_tick_path_allocates_nothing(batch, with_lazy):
 def _reference_ik(g, pos, quat):
     """The pulley model of the ik module docstring evaluated directly, as the implementation
     before the per-call optimisation did (allocating, eq 1 rounding): the reference values."""
-    from cablesvc.kinematics.ik import _FOLD_TOL, EPS_SWIVEL, _swivel_reference
+    from cablesvc.kinematics.ik_layout import _FOLD_TOL, EPS_SWIVEL, _swivel_reference
 
     pulley = np.asarray(g.has_pulley)
     mask = pulley.astype(float)
