@@ -25,7 +25,8 @@ import pytest
 import zenoh
 
 from cablesvc.cli.main import build_parser
-from cablesvc.cli.run_cmd import FleetConfigError, plan_fleet
+from cablesvc.cli.run_fleet import plan_fleet
+from cablesvc.config.daemon import FleetConfigError
 from cablesvc.config.params import nominal_params
 from cablesvc.config import load_robot
 from cablesvc.recording import read_recording, write_recording

@@ -325,7 +325,8 @@ def test_fleet_refuses_a_record_file_that_is_a_replay_input(tmp_path: Path, repl
     import tomllib
 
     from cablesvc.cli.main import build_parser
-    from cablesvc.cli.run_cmd import FleetConfigError, plan_fleet
+    from cablesvc.cli.run_fleet import plan_fleet
+    from cablesvc.config.daemon import FleetConfigError
 
     path, _ = replay_file
     a = tmp_path / "a.mcap"

@@ -56,7 +56,10 @@ ALLOC_WARMUP = 200
 class BenchArgumentError(ModelParameterError):
     """A bad argument of ``bench kernel`` (ticks, model): a one-line message naming the option.
 
-    A ModelParameterError (ValueError) so that the CLI's handler prints it as one line."""
+    A ModelParameterError (a cablesvc.errors.ModelError and a ValueError), so the CLI prints
+    it as one line; exit status 2, like argparse (cablesvc.cli.failures.exit_status)."""
+
+    exit_status = 2
 
 
 @dataclass

@@ -30,7 +30,7 @@ TWIN_BYTES_PER_TICK_CABLE = 4700
 TWIN_DEFAULT_DURATION_MAX_S = 60.0
 
 #: seconds of twin motion the embedded controller of ``cablesvc run`` precomputes
-#: (cablesvc.cli.run_cmd._sim_controller)
+#: (cablesvc.cli.run_sim.sim_controller)
 SIM_CONTROLLER_SECONDS = 10.0
 
 #: The daemon's kernel needs about 80 numpy calls a tick (docs/performance.md: IK 20,

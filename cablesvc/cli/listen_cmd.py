@@ -22,6 +22,8 @@ import time
 from collections import deque
 from typing import Any
 
+from cablesvc.cli.failures import UsageError, zenoh_failure
+
 EPILOG = """\
 examples:
   cablesvc listen                                   live table of every robot on tcp/127.0.0.1:7447
@@ -41,71 +43,49 @@ def _config(args):
     return make_config(mode="peer", listen=(), connect=connect or [DEFAULT_LISTEN])
 
 
-class _CliError(Exception):
-    """A one-line error for the command line; ``status`` is the exit status."""
-
-    def __init__(self, msg: str, status: int):
-        super().__init__(msg)
-        self.status = status
-
-
 def _check_args(args) -> None:
-    """Bad values of the command line: :class:`_CliError` (exit status 2) naming the flag."""
+    """Bad values of the command line: a :class:`UsageError` (exit status 2) naming the flag."""
     from cablesvc.service.zenoh_io import keys
 
     if args.robot is not None:
         try:
             keys(args.robot)
         except ValueError as e:
-            raise _CliError(f"--robot: {e}", 2) from None
+            raise UsageError(f"--robot: {e}") from None
     for flag, v in (("--wait", args.wait), ("--timeout", args.timeout)):
         if v is not None and not (math.isfinite(v) and v >= 0):
-            raise _CliError(f"{flag}: expected seconds >= 0 (a finite number), got {v!r}", 2)
+            raise UsageError(f"{flag}: expected seconds >= 0 (a finite number), got {v!r}")
     if args.count is not None and args.count < 1:
-        raise _CliError(f"--count: expected a number of messages >= 1, got {args.count!r}", 2)
+        raise UsageError(f"--count: expected a number of messages >= 1, got {args.count!r}")
     for v in args.connect or ():
         proto, _, addr = v.partition("/")
         if not proto or not addr or v != v.strip():
-            raise _CliError(f"--connect: a Zenoh endpoint looks like tcp/127.0.0.1:7447, got {v!r}", 2)
-
-
-def _is_zenoh_error(e: BaseException) -> bool:
-    return type(e).__module__.startswith("zenoh") or type(e).__name__ == "ZError"
+            raise UsageError(f"--connect: a Zenoh endpoint looks like tcp/127.0.0.1:7447, got {v!r}")
 
 
 def _listener(args, **kw):
     """The Listener of ``args``; a Zenoh configuration or session that cannot be had is a
-    :class:`_CliError` (exit status 1) naming the file or the endpoints."""
+    :class:`~cablesvc.errors.ServiceError` (exit status 1) naming the file or the endpoints."""
+    import zenoh
+
     from cablesvc.service.zenoh_io import DEFAULT_LISTEN, Listener
 
     where = args.zenoh_config or f"connect {', '.join(args.connect or (DEFAULT_LISTEN,))}"
     try:
         config = _config(args)
-    except Exception as e:  # noqa: BLE001 - a missing or invalid JSON5 file, a bad endpoint: one line
-        if not (_is_zenoh_error(e) or isinstance(e, (ValueError, OSError))):
-            raise
-        raise _CliError(f"cannot use the Zenoh configuration ({where}): {str(e).split(' at /')[0]}", 1) from None
+    except (zenoh.ZError, ValueError, OSError) as e:    # a missing or invalid JSON5 file, a bad endpoint
+        raise zenoh_failure("use the Zenoh configuration", where, e) from None
     try:
         return Listener(args.robot, config, **kw)
-    except Exception as e:  # noqa: BLE001
-        if not _is_zenoh_error(e):
-            raise
-        raise _CliError(f"cannot open the Zenoh session ({where}): {str(e).split(' at /')[0]}", 1) from None
+    except zenoh.ZError as e:
+        raise zenoh_failure("open the Zenoh session", where, e) from None
 
 
 def cmd_listen(args) -> int:
     """Handler of ``cablesvc listen``. Exit status 0; 1 when --status/--alive got no answer
     or --timeout passed without a message, or the Zenoh session cannot be opened; 2 for a
-    bad argument."""
-    try:
-        _check_args(args)
-        return _cmd_listen(args)
-    except _CliError as e:
-        print(f"cablesvc listen: {e}", file=sys.stderr)
-        return e.status
-
-
-def _cmd_listen(args) -> int:
+    bad argument (cablesvc.cli.main prints the error)."""
+    _check_args(args)
     out = sys.stdout
     if args.status or args.alive:
         lis = _listener(args)

@@ -126,20 +126,21 @@ def cmd_robots(args) -> int:
 # ---- bench -----------------------------------------------------------------------------
 
 def cmd_bench_kernel(args) -> int:
-    from cablesvc.bench.kernel import INPUTS, BenchArgumentError, as_dicts, run_kernel_bench
+    from cablesvc.bench.kernel import INPUTS, as_dicts, run_kernel_bench
+    from cablesvc.cli.failures import UsageError
 
     inputs = args.input or list(INPUTS)
     kw = {"machine_baseline": not args.no_baseline, "cpu": args.cpu, "realtime": args.realtime}
-    if args.json:
+
+    def bench(**more):
+        # a bad --ticks / --model is a BenchArgumentError (exit 2, like argparse; printed by main)
         try:
-            res = run_kernel_bench(args.robot, args.model, args.params, args.ticks, inputs, **kw)
-        except BenchArgumentError as e:           # a bad --ticks / --model: exit 2, like argparse
-            print(f"cablesvc bench kernel: {e}", file=sys.stderr)
-            return 2
+            return run_kernel_bench(args.robot, args.model, args.params, args.ticks, inputs, **kw, **more)
         except OSError as e:
-            print(f"cablesvc bench kernel: cannot set the scheduling asked for (--cpu/--realtime): {e}",
-                  file=sys.stderr)
-            return 2
+            raise UsageError(f"cannot set the scheduling asked for (--cpu/--realtime): {e}") from None
+
+    if args.json:
+        res = bench()
         for d in as_dicts(res):
             print(json.dumps(d))
         return 0
@@ -153,15 +154,7 @@ def cmd_bench_kernel(args) -> int:
         def cb(kind, k, n):
             done[kind] = k
             prog.update(task, completed=sum(done.values()), description=f"{kind}")
-        try:
-            res = run_kernel_bench(args.robot, args.model, args.params, args.ticks, inputs, progress=cb, **kw)
-        except BenchArgumentError as e:           # a bad --ticks / --model: exit 2, like argparse
-            print(f"cablesvc bench kernel: {e}", file=sys.stderr)
-            return 2
-        except OSError as e:
-            print(f"cablesvc bench kernel: cannot set the scheduling asked for (--cpu/--realtime): {e}",
-                  file=sys.stderr)
-            return 2
+        res = bench(progress=cb)
     tb = Table(title=f"kernel latency per tick, {res[0].robot}, model {res[0].model}, {args.ticks} ticks, "
                      f"gc frozen, scheduling {res[0].scheduling}")
     for c in ("input", "p50 us", "p99 us", "p99.9 us", "max us", "alloc B/tick", "p99 / normal p99"):
@@ -209,10 +202,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_simulate)
 
     from cablesvc.cli import beam_cmd, discover_cmd, identify_cmd, listen_cmd
-    listen_cmd.add_parser(sub)
-    identify_cmd.add_parser(sub)
-    discover_cmd.add_parser(sub)
-    beam_cmd.add_parser(sub)
+    for command in (listen_cmd, identify_cmd, discover_cmd, beam_cmd):
+        command.add_parser(sub)
 
     rb = sub.add_parser("robots", help="list or check robot definition files")
     rb.add_argument("action", choices=["list", "check"])
@@ -240,26 +231,13 @@ def build_parser() -> argparse.ArgumentParser:
     bk.add_argument("--cpu", type=int, help="pin the benchmark to this CPU (as a production deployment would)")
     bk.add_argument("--realtime", action="store_true", help="run at SCHED_FIFO priority 50 (needs CAP_SYS_NICE)")
     bk.set_defaults(func=cmd_bench_kernel)
-    from cablesvc.bench import e2e
-    e2e.add_parser(bsub)
-    from cablesvc.bench import alarms, beam, boucwen, cable_experiment, can_codec, discover, soak
-    soak.add_parser(bsub)
-    alarms.add_parser(bsub)
-    beam.add_parser(bsub)
-    discover.add_parser(bsub)
-    boucwen.add_parser(bsub)
-    cable_experiment.add_parser(bsub)
-    can_codec.add_parser(bsub)
-    from cablesvc.bench import record
-    record.add_parser(bsub)
+    from cablesvc.bench import (alarms, beam, boucwen, cable_experiment, can_codec, discover, discover_scale, e2e,
+                                live_discovery, record, soak)
     from cablesvc.bench import fleet as fleet_bench
-    fleet_bench.add_parser(bsub)
     from cablesvc.bench import read as read_bench
-    read_bench.add_parser(bsub)
-    from cablesvc.bench import live_discovery
-    live_discovery.add_parser(bsub)
-    from cablesvc.bench import discover_scale
-    discover_scale.add_parser(bsub)
+    for bench in (e2e, soak, alarms, beam, discover, boucwen, cable_experiment, can_codec, record, fleet_bench,
+                  read_bench, live_discovery, discover_scale):
+        bench.add_parser(bsub)
     b.set_defaults(func=lambda a: (b.print_help(), 2)[1])
     return p
 
@@ -278,16 +256,14 @@ def _main(argv: list[str] | None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    from cablesvc.config import RobotFileError
-    from cablesvc.config.params import ParamFileError
-    from cablesvc.models import ModelParameterError
-    from cablesvc.recording import RecordingError
-    from cablesvc.simulate import SimulationError
+    from cablesvc.cli.failures import exit_status, not_yet_rooted
+    from cablesvc.errors import CablesvcError
     try:
         return int(args.func(args) or 0)
-    except (RobotFileError, ParamFileError, RecordingError, SimulationError, ModelParameterError) as e:
-        print(f"cablesvc {args.command}: {e}", file=sys.stderr)
-        return 1
+    except (CablesvcError, *not_yet_rooted()) as e:   # the one place: one line, no traceback
+        command = " ".join(c for c in (args.command, getattr(args, "bench", None)) if c)   # "bench kernel"
+        print(f"cablesvc {command}: {e}", file=sys.stderr)
+        return exit_status(e)
 
 
 if __name__ == "__main__":

@@ -22,8 +22,9 @@ Start-up is all or nothing: when one robot cannot start (its source does not ope
 recording is missing, ...) the robots already opened are closed again, the session too,
 and :class:`FleetStartError` names the robot that failed.
 
-The TOML form (``cablesvc run --config fleet.toml``, ``[[robots]]`` tables) is read by
-:mod:`cablesvc.cli.run_cmd`; ``deploy/fleet.example.toml`` is an example.
+The TOML form (``cablesvc run --config fleet.toml``, ``[[robots]]`` tables) is
+checked by :class:`cablesvc.config.daemon.FleetConfig` and planned by
+:mod:`cablesvc.cli.run_fleet`; ``deploy/fleet.example.toml`` is an example.
 """
 
 from __future__ import annotations

@@ -1,0 +1,41 @@
+"""How the command line reports a failure: every error cablesvc raises on purpose is a
+:class:`~cablesvc.errors.CablesvcError`; ``cablesvc.cli.main`` catches it in one place and
+prints one line, ``cablesvc <command>: <message>``, with the exit status of
+:func:`exit_status` (2 for a bad command-line value, as argparse does; 1 otherwise)."""
+
+from __future__ import annotations
+
+from cablesvc.errors import CablesvcError, ConfigError, ServiceError
+
+__all__ = ["UsageError", "exit_status", "zenoh_failure"]
+
+
+class UsageError(ConfigError, ValueError):
+    """A command-line value that no config can fix (``--count 0``, ``--rate -1``): exit status 2."""
+
+    exit_status = 2
+
+
+def exit_status(e: CablesvcError) -> int:
+    """The exit status for ``e``: its class's ``exit_status`` (2 for a usage error), else 1."""
+    return int(getattr(e, "exit_status", 1))
+
+
+def zenoh_failure(what: str, where: str, e: BaseException) -> ServiceError:
+    """A Zenoh error (``zenoh.ZError``) as one line: ``cannot open the Zenoh session
+    (<where>): <zenoh's message without its source location>``; ``what`` is ``open the
+    Zenoh session`` or ``use the Zenoh configuration``."""
+    return ServiceError(f"cannot {what} ({where}): {str(e).split(' at /')[0]}")
+
+
+def not_yet_rooted() -> tuple[type[BaseException], ...]:
+    """Errors the command line reports as one line whose classes do not derive from
+    :class:`CablesvcError` yet (their areas are being moved under it, issue 19); empty once
+    every one does. Caught next to CablesvcError by ``cablesvc.cli.main`` only."""
+    from cablesvc.recording import RecordingError
+    from cablesvc.service.daemon import StartError
+    from cablesvc.simulate import SimulationError
+    from cablesvc.sources import SourceConfigError
+
+    return tuple(c for c in (RecordingError, SimulationError, SourceConfigError, StartError)
+                 if not issubclass(c, CablesvcError))
