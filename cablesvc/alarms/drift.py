@@ -52,7 +52,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from cablesvc.alarms import DRIFT_SUGGESTED_ACTION, AlarmEvent, _jit, _jit_inline
-from cablesvc.alarms.residual import ResidualDetector, _ewma_gain, _sample_dt
+from cablesvc.alarms.residual import (RUN_SIGNATURE, STEP_SIGNATURE, ResidualDetector, _ewma_gain, _sample_dt,
+                                      block_samples, tick_samples)
 
 __all__ = ["DriftConfig", "DriftDetector"]
 
@@ -107,12 +108,8 @@ _NAN = math.nan
 
 
 @_jit_inline
-def _start(S, i, t, base):
-    """Cable i leaves the warm-up (or is given a baseline) at time t."""
-    S[_BASE, i] = base
-    S[_READY, i] = 1.0
-    S[_T_LAST, i] = t
-    S[_EWMA, i] = 0.0
+def _restart_cusum(S, i, t):
+    """Both CUSUM sides of cable i back to zero, their runs starting at time t."""
     S[_CU, i] = 0.0
     S[_CL, i] = 0.0
     S[_CU_T0, i] = t
@@ -121,6 +118,16 @@ def _start(S, i, t, base):
     S[_CU_ST, i] = 0.0
     S[_CL_SZ, i] = 0.0
     S[_CL_ST, i] = 0.0
+
+
+@_jit_inline
+def _start(S, i, t, base):
+    """Cable i leaves the warm-up (or is given a baseline) at time t."""
+    S[_BASE, i] = base
+    S[_READY, i] = 1.0
+    S[_T_LAST, i] = t
+    S[_EWMA, i] = 0.0
+    _restart_cusum(S, i, t)
     S[_RAISE_SINCE, i] = _NAN
     S[_CLEAR_SINCE, i] = _NAN
 
@@ -224,44 +231,22 @@ def _drift_sample(S, P, t, r, i, E, ne, row):
                 S[_ACTIVE, i] = 0.0
                 S[_SIDE, i] = 0.0
                 S[_CLEAR_SINCE, i] = _NAN
-                S[_CU, i] = 0.0
-                S[_CL, i] = 0.0
-                S[_CU_T0, i] = t
-                S[_CL_T0, i] = t
-                S[_CU_SZ, i] = 0.0
-                S[_CU_ST, i] = 0.0
-                S[_CL_SZ, i] = 0.0
-                S[_CL_ST, i] = 0.0
+                _restart_cusum(S, i, t)
         else:
             S[_CLEAR_SINCE, i] = _NAN
     return ne
 
 
-@_jit("int64(float64[:, ::1], float64[::1], float64, float64[::1], float64[:, ::1])")
+@_jit(STEP_SIGNATURE)
 def _drift_step(S, P, t, r, E):
-    """One tick: sample r[i] of every cable at time t. Returns the number of event records."""
-    ne = 0
-    for i in range(S.shape[1]):
-        ne = _drift_sample(S, P, t, r[i], i, E, ne, 0)
-    return ne
+    """One tick of every cable (:func:`_drift_sample` each). Returns the number of event records."""
+    return tick_samples(_drift_sample, S, P, t, r, E)
 
 
-@_jit("UniTuple(int64, 2)(float64[:, ::1], float64[::1], float64[::1], float64[:, ::1], float64[:, ::1], int64)")
+@_jit(RUN_SIGNATURE)
 def _drift_run(S, P, T, R, E, row0):
-    """Ticks row0.. of a block (T (n,) [s], R (n, m) [N]) until the end of the block or until
-    E cannot hold one more tick's records. Returns (records, next row)."""
-    m = S.shape[1]
-    cap = E.shape[0]
-    ne = 0
-    row = row0
-    n = T.shape[0]
-    while row < n and ne + m <= cap:
-        t = T[row]
-        for i in range(m):
-            ne = _drift_sample(S, P, t, R[row, i], i, E, ne, row)
-        row += 1
-    return ne, row
-
+    """A block of ticks from row0 on (:func:`~cablesvc.alarms.residual.block_samples`)."""
+    return block_samples(_drift_sample, S, P, T, R, E, row0)
 
 class DriftDetector(ResidualDetector):
     """Per-cable drift of the residual measured - predicted [N]; see the module docstring.
@@ -273,6 +258,7 @@ class DriftDetector(ResidualDetector):
     """
 
     code = "drift"
+    config_class = DriftConfig
     n_state = _NS
     n_record = _NE
     _step = staticmethod(_drift_step)
@@ -280,8 +266,7 @@ class DriftDetector(ResidualDetector):
 
     def __init__(self, n_cables: int, config: DriftConfig | None = None,
                  cable_names: Sequence[str] | None = None):
-        super().__init__(n_cables, config if config is not None else DriftConfig(), cable_names)
-        self.reset()
+        super().__init__(n_cables, config, cable_names)
         if self.config.baseline_n is not None:
             self.set_baseline(self.config.baseline_n)
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from cablesvc.alarms import ALARM_CODES, AlarmEvent, _jit_inline
 
-__all__ = ["ResidualDetector"]
+__all__ = ["RUN_SIGNATURE", "STEP_SIGNATURE", "ResidualDetector", "block_samples", "tick_samples"]
 
 # event record columns every residual detector starts its records with
 E_ROW, E_CABLE = 0, 1
@@ -49,36 +49,77 @@ def _ewma_gain(dt, tau):
     return dt / (tau + dt)
 
 
+#: numba signatures of a detector's per-tick kernel (S, P, t, r, E) -> records and per-block
+#: kernel (S, P, T, R, E, row0) -> (records, next row); see :func:`tick_samples`, :func:`block_samples`
+STEP_SIGNATURE = "int64(float64[:, ::1], float64[::1], float64, float64[::1], float64[:, ::1])"
+RUN_SIGNATURE = ("UniTuple(int64, 2)(float64[:, ::1], float64[::1], float64[::1], float64[:, ::1], "
+                 "float64[:, ::1], int64)")
+
+
+@_jit_inline
+def tick_samples(sample, S, P, t, r, E):
+    """One tick: ``sample`` (S, P, t, r, i, E, ne, row) -> records (a detector's inline
+    per-sample kernel, which appends cable i's raise/clear records to E[ne:]) on sample
+    r[i] of every cable at time t. Returns the number of event records."""
+    ne = 0
+    for i in range(S.shape[1]):
+        ne = sample(S, P, t, r[i], i, E, ne, 0)
+    return ne
+
+
+@_jit_inline
+def block_samples(sample, S, P, T, R, E, row0):
+    """Ticks row0.. of a block (T (n,) [s], R (n, m) [N]) through ``sample`` (as
+    :func:`tick_samples`), until the end of the block or until E cannot hold one more
+    tick's records. Returns (records, next row). The same per-sample code as the per-tick
+    path, so both give bit-identical states and events."""
+    m = S.shape[1]
+    cap = E.shape[0]
+    ne = 0
+    row = row0
+    n = T.shape[0]
+    while row < n and ne + m <= cap:
+        t = T[row]
+        for i in range(m):
+            ne = sample(S, P, t, R[row, i], i, E, ne, row)
+        row += 1
+    return ne, row
+
 class ResidualDetector:
     """Shell of a per-cable detector of the residual [N].
 
-    A subclass sets ``code`` (its alarm code), ``n_state`` (rows of its (n_state, m) state),
+    ``n_cables`` m; ``config`` the subclass's ``config_class`` (default: its defaults);
+    ``cable_names`` for the messages. A subclass sets ``code`` (its alarm code),
+    ``config_class``, ``n_state`` (rows of its (n_state, m) state),
     ``n_record`` (columns of its event records, starting with row and cable), the numba
     kernels ``_step`` (S, P, t, r, E) -> records and ``_run`` (S, P, T, R, E, row0) ->
-    (records, next row) as staticmethods, and :meth:`_event` (one record -> AlarmEvent).
+    (records, next row) as staticmethods, :meth:`reset` (cables -> their state at rest;
+    called here for all) and :meth:`_event` (one record -> AlarmEvent).
     ``config`` must have ``as_array()`` (the kernel's parameter vector).
     """
 
     code = ""
+    config_class: Any = None
     n_state = 0
     n_record = 2
     _step: Any = None
     _run: Any = None
 
-    def __init__(self, n_cables: int, config, cable_names: Sequence[str] | None = None):
+    def __init__(self, n_cables: int, config=None, cable_names: Sequence[str] | None = None):
         self.n_cables = m = int(n_cables)
         if m < 1:
             raise ValueError("n_cables must be >= 1")
-        self.config = config
+        self.config = config if config is not None else self.config_class()
         self.cable_names = tuple(cable_names) if cable_names is not None else tuple(f"cable{i}" for i in range(m))
         if len(self.cable_names) != m:
             raise ValueError(f"{len(self.cable_names)} cable names for {m} cables")
-        self._P = config.as_array()
+        self._P = self.config.as_array()
         self._S = np.zeros((self.n_state, m))
         self._E = np.zeros((m, self.n_record))                    # one tick: at most one record per cable
         self._Eb = np.zeros((max(4096, 4 * m), self.n_record))   # batch
         self._shape = (m,)
         self._severity = ALARM_CODES[self.code][0]
+        self.reset()
 
     def update(self, t: float, seq: int | None, residual: np.ndarray) -> list[AlarmEvent]:
         """One tick: ``residual`` (m,) measured - predicted [N], NaN where a cable has no

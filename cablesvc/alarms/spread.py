@@ -61,7 +61,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from cablesvc.alarms import SPREAD_SUGGESTED_ACTION, AlarmEvent, _jit, _jit_inline
-from cablesvc.alarms.residual import ResidualDetector, _ewma_gain, _sample_dt
+from cablesvc.alarms.residual import (RUN_SIGNATURE, STEP_SIGNATURE, ResidualDetector, _ewma_gain, _sample_dt,
+                                      block_samples, tick_samples)
 from cablesvc.alarms.state import _ACTIVE, _CLEAR_SINCE, _RAISE_SINCE, _SINCE, _hold
 
 __all__ = ["SpreadConfig", "SpreadDetector"]
@@ -165,31 +166,16 @@ def _spread_sample(S, P, t, r, i, E, ne, row):
     return ne
 
 
-@_jit("int64(float64[:, ::1], float64[::1], float64, float64[::1], float64[:, ::1])")
+@_jit(STEP_SIGNATURE)
 def _spread_step(S, P, t, r, E):
-    """One tick: sample r[i] of every cable at time t. Returns the number of event records."""
-    ne = 0
-    for i in range(S.shape[1]):
-        ne = _spread_sample(S, P, t, r[i], i, E, ne, 0)
-    return ne
+    """One tick of every cable (:func:`_spread_sample` each). Returns the number of event records."""
+    return tick_samples(_spread_sample, S, P, t, r, E)
 
 
-@_jit("UniTuple(int64, 2)(float64[:, ::1], float64[::1], float64[::1], float64[:, ::1], float64[:, ::1], int64)")
+@_jit(RUN_SIGNATURE)
 def _spread_run(S, P, T, R, E, row0):
-    """Ticks row0.. of a block (T (n,) [s], R (n, m) [N]) until the end of the block or until
-    E cannot hold one more tick's records. Returns (records, next row)."""
-    m = S.shape[1]
-    cap = E.shape[0]
-    ne = 0
-    row = row0
-    n = T.shape[0]
-    while row < n and ne + m <= cap:
-        t = T[row]
-        for i in range(m):
-            ne = _spread_sample(S, P, t, R[row, i], i, E, ne, row)
-        row += 1
-    return ne, row
-
+    """A block of ticks from row0 on (:func:`~cablesvc.alarms.residual.block_samples`)."""
+    return block_samples(_spread_sample, S, P, T, R, E, row0)
 
 class SpreadDetector(ResidualDetector):
     """Per-cable spread of the residual measured - predicted [N] against its noise floor;
@@ -202,15 +188,11 @@ class SpreadDetector(ResidualDetector):
     """
 
     code = "spread"
+    config_class = SpreadConfig
     n_state = _NS
     n_record = _NE
     _step = staticmethod(_spread_step)
     _run = staticmethod(_spread_run)
-
-    def __init__(self, n_cables: int, config: SpreadConfig | None = None,
-                 cable_names: Sequence[str] | None = None):
-        super().__init__(n_cables, config if config is not None else SpreadConfig(), cable_names)
-        self.reset()
 
     def reset(self, cables: Sequence[int] | None = None) -> None:
         """Forget everything of these cables (default: all), active alarms included; their

@@ -412,24 +412,22 @@ class Listener:
             return None
 
     def _forces_cb(self, sample) -> None:
-        now = time.monotonic_ns()
-        p = self._decode(sample)
-        if p is None:
-            return
-        if self._on_forces is not None:
-            self._on_forces(p, now)
-        else:
-            self._qf.put(Received(p, now, str(sample.key_expr), str(sample.encoding)))
+        self._deliver(sample, self._on_forces, self._qf)
 
     def _alarm_cb(self, sample) -> None:
+        self._deliver(sample, self._on_alarm, self._qa)
+
+    def _deliver(self, sample, handler, q) -> None:
+        """A received message, decoded, to ``handler`` (payload, receive time [ns]) when the
+        listener has one, else onto the queue ``q``; an undecodable one is counted and dropped."""
         now = time.monotonic_ns()
         p = self._decode(sample)
         if p is None:
             return
-        if self._on_alarm is not None:
-            self._on_alarm(p, now)
+        if handler is not None:
+            handler(p, now)
         else:
-            self._qa.put(Received(p, now, str(sample.key_expr), str(sample.encoding)))
+            q.put(Received(p, now, str(sample.key_expr), str(sample.encoding)))
 
     def forces(self, timeout: float | None = None) -> Received | None:
         """Next forces message from the queue, waiting up to ``timeout`` s (None: forever, until
