@@ -14,8 +14,8 @@ from cablesvc.bench.cable_experiment import effective_values, experiment_truth, 
 from cablesvc.cli.identify_cmd import build_parser, run_identify
 from cablesvc.config import load_robot
 from cablesvc.config.params import load_params
-from cablesvc.identify.amplitude_fit import (damping_regressor, level_trace, reversal_amplitude, reversal_points,
-                                             segment_levels, simulate_amplitude)
+from cablesvc.identify.amplitude_levels import damping_regressor, level_trace, segment_levels, simulate_amplitude
+from cablesvc.models.reversal import reversal_amplitude, reversal_points
 from cablesvc.models import AmplitudeDependent
 from cablesvc.identify.cable import IdentifyError, cable_data, identify_cable
 from cablesvc.recording import write_recording

@@ -101,7 +101,7 @@ def effective_values(params: ModelParams, n_cables: int, A: float) -> dict[str, 
     """Table values (per cable, (m,)) the kernel's amplitude model applies at amplitude
     ``A`` [m]: the tables are resampled on GRID_POINTS uniform amplitudes and read at the
     nearest point, clamped to the table range (see :class:`AmplitudeDependent`)."""
-    from cablesvc.identify.amplitude_fit import PER_LEVEL
+    from cablesvc.identify.amplitude_levels import PER_LEVEL
     from cablesvc.models.amplitude import GRID_POINTS
 
     grid = np.asarray(params.tables["amplitudes"], float)
@@ -165,7 +165,8 @@ def run_cable_experiment(robot: str = "ipanema3", *, seed: int = 0, rate: float 
                          held_out: float = HELD_OUT, cables: Sequence[int] | None = None,
                          progress: Any = None) -> dict[str, Any]:
     """Simulate the experiment, identify, score. Returns a JSON-able dict (see module docstring)."""
-    from cablesvc.identify.amplitude_fit import PER_LEVEL, fit_amplitude_model
+    from cablesvc.identify.amplitude_fit import fit_amplitude_model
+    from cablesvc.identify.amplitude_levels import PER_LEVEL
     from cablesvc.identify.cable import amplitude_params, cable_data
 
     from cablesvc.simulate import TruthConfig, simulate_recording
@@ -255,7 +256,7 @@ def run_cable_experiment(robot: str = "ipanema3", *, seed: int = 0, rate: float 
     for i in range(data.t.size):
         pred[i] = model.step(st, x_all[i][None], float(dts[i]), l0_all[i][None])[0]
     pred = pred[:, data.cables]
-    from cablesvc.identify.amplitude_fit import segment_levels
+    from cablesvc.identify.amplitude_levels import segment_levels
     held_rmse = []
     held_rmse_truthfree = []
     for c in range(K):
@@ -298,7 +299,7 @@ def run_cable_experiment(robot: str = "ipanema3", *, seed: int = 0, rate: float 
 
 
 def _print_human(res: dict[str, Any]) -> None:
-    from cablesvc.identify.amplitude_fit import PER_LEVEL
+    from cablesvc.identify.amplitude_levels import PER_LEVEL
 
     from rich.console import Console
     from rich.table import Table

@@ -176,7 +176,7 @@ def _cmd_fleet(args: argparse.Namespace, specs: list[str], cables: list[int] | N
 def _print_table(con: Any, fit: Any, format_value: Any) -> None:
     from rich.table import Table
     if fit.amplitude is not None:
-        from cablesvc.identify.amplitude_fit import PER_LEVEL, UNITS
+        from cablesvc.identify.amplitude_levels import PER_LEVEL, UNITS
         af = fit.amplitude
         tb = Table(title=f"amplitude model per level (002 eq 8), value +- standard error; "
                          f"{len(af.fits)} levels, {af.table_amplitudes.size}-point table")

@@ -13,8 +13,11 @@ where computed, ``jac, residual, stderr, correlation, cond, method``).
 * :mod:`cablesvc.identify.identifiability` - correlation, condition number, redundant
   parameter groups, sensitivity of 002 eq 11.
 * :func:`identify_cable` (:mod:`cablesvc.identify.cable`) - cable models from
-  recordings; :mod:`cablesvc.identify.amplitude_fit` - the per-amplitude-level fits of
-  002 Sec 3 that build the amplitude model's tables; :mod:`cablesvc.identify.report` -
+  recordings; :mod:`cablesvc.identify.amplitude_fit` - the fits of 002 Sec 3 that build
+  the amplitude model's tables (levels and per-level fits in
+  :mod:`~cablesvc.identify.amplitude_levels`, the amplitude functions f_A in
+  :mod:`~cablesvc.identify.amplitude_joint`); :mod:`cablesvc.identify.bounds` - the one
+  reader of parameter bounds; :mod:`cablesvc.identify.report` -
   Markdown + PNG report. (Imported on first use.)
 """
 

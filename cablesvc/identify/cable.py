@@ -402,7 +402,8 @@ def identify_cable(recording: Any, robot: Robot | str | os.PathLike, model: str 
     say = progress if callable(progress) else (lambda *a: None)
 
     if MODELS[model].fit_by_levels:
-        from cablesvc.identify.amplitude_fit import fit_amplitude_model, segment_levels
+        from cablesvc.identify.amplitude_fit import fit_amplitude_model
+        from cablesvc.identify.amplitude_levels import segment_levels
         levels_found = all(len(segment_levels(data.x[:, c], data.t)) > 0 for c in range(len(data.cables)))
         if levels_found and not shared:
             say(0, 1, "amplitude levels")

@@ -68,7 +68,7 @@ def _convergence(fit: Any, out: Path) -> str:
     name = "convergence.png"
     if fit.amplitude is not None:
         af = fit.amplitude
-        from cablesvc.identify.amplitude_fit import PER_LEVEL
+        from cablesvc.identify.amplitude_levels import PER_LEVEL
         fig, axes = plt.subplots(2, 3, figsize=(12, 7))
         grid = af.table_amplitudes
         for ax, k in zip(axes.ravel(), PER_LEVEL):
@@ -132,7 +132,7 @@ def _residuals(fit: Any, out: Path) -> str:
 def _param_table(fit: Any) -> list[str]:
     lines = []
     if fit.amplitude is not None:
-        from cablesvc.identify.amplitude_fit import PER_LEVEL, UNITS
+        from cablesvc.identify.amplitude_levels import PER_LEVEL, UNITS
         af = fit.amplitude
         for j, c in enumerate(af.cables):
             lines += [f"### cable {c}", "", f"x_center = {af.x_center[j]:.6g} m (pretension working point)", "",
