@@ -34,6 +34,7 @@ import numpy as np
 from cablesvc.beam.solver import (
     OMEGA, TABLE2_BOUNDS, BeamParams, Section, SolverOptions, stabilised_loop,
 )
+from cablesvc.errors import IdentifyError
 from cablesvc.identify.pso import normalized_mse, pso
 from cablesvc.identify.result import IdentifyResult
 
@@ -79,7 +80,7 @@ def synthetic_test(section: Section, length: float, params: BeamParams, amplitud
     if steps_per_cycle > topt.steps_per_cycle:
         topt = replace(topt, steps_per_cycle=int(steps_per_cycle))
     if topt.steps_per_cycle % steps_per_cycle:
-        raise ValueError("truth steps_per_cycle must be a multiple of steps_per_cycle")
+        raise IdentifyError("truth steps_per_cycle must be a multiple of steps_per_cycle")
     lp = stabilised_loop(section, length, params, amplitude, options=topt)
     if lp.status[0] != 0:
         raise RuntimeError(f"truth simulation failed at step {lp.status[0]}")
@@ -115,7 +116,7 @@ class BoxMap:
 
     def __init__(self, lb: np.ndarray, ub: np.ndarray, kind: str = "valley") -> None:
         if kind not in ("linear", "valley"):
-            raise ValueError(f"coords: expected 'linear' or 'valley', got {kind!r}")
+            raise IdentifyError(f"coords: expected 'linear' or 'valley', got {kind!r}")
         self.lb, self.ub, self.kind = np.asarray(lb, float), np.asarray(ub, float), kind
 
     def to_x(self, U: np.ndarray) -> np.ndarray:
@@ -152,7 +153,7 @@ def cubic_resampling(steps: int, k: int) -> tuple[np.ndarray, np.ndarray]:
     the 4-point Lagrange interpolation that reads it at ``k`` times as many, equally spaced
     instants (the stencil is shifted inwards at the ends). ``f_dense = sum_j f[idx[:, j]] w[:, j]``."""
     if steps < 3:
-        raise ValueError("cubic resampling needs at least 3 load steps")
+        raise IdentifyError("cubic resampling needs at least 3 load steps")
     u = np.arange(steps * k + 1) / k                     # position in load steps
     b = np.clip(np.floor(u).astype(int) - 1, 0, steps - 3)
     r = u - b                                            # in [0, 3]
@@ -170,7 +171,7 @@ class LoopObjective:
     def __init__(self, tests: Sequence[BeamTest], options: SolverOptions | None = None) -> None:
         self.tests = list(tests)
         if not self.tests:
-            raise ValueError("need at least one test")
+            raise IdentifyError("need at least one test")
         self.options = options or SolverOptions()
         S = self.options.steps_per_cycle
         # data may be sampled more densely than the model's load steps (a load cell samples
@@ -182,7 +183,7 @@ class LoopObjective:
         for te in self.tests:
             n = te.x.size - 1
             if n < S or n % S:
-                raise ValueError(f"test has {te.x.size} samples; the objective needs k * steps_per_cycle + 1 "
+                raise IdentifyError(f"test has {te.x.size} samples; the objective needs k * steps_per_cycle + 1 "
                                  f"= k * {S} + 1 of them (k = 1, 2, ...)")
             k = n // S
             self._interp.append(None if k == 1 else cubic_resampling(S, k))

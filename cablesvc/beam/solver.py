@@ -65,10 +65,14 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
+from cablesvc.errors import SimulationError
+from cablesvc.lanes import run_lanes
+from cablesvc.models.boucwen import bouc_wen_rate
+
 __all__ = [
     "Section", "BeamParams", "SolverOptions", "PathResult", "Loop", "PARAM_NAMES",
     "ROPE_7x19", "ROPE_7x7", "TABLE3", "TABLE4", "TABLE6", "OMEGA", "MODES",
-    "solve_path", "stabilised_loop", "loop_path", "bouc_wen_saturation",
+    "solve_path", "stabilised_loop", "loop_path",
 ]
 
 OMEGA = 0.628                      # rad/s, test frequency of 000 Sec 6
@@ -158,11 +162,6 @@ TABLE2_BOUNDS = {"psi": (0.008, 0.025), "delta": (0.1, 0.6), "gamma": (0.8, 2.0)
                  "n": (1.0, 1.3)}
 
 
-def bouc_wen_saturation(EJh, gamma, beta, n):
-    """|M_h| bound (EJ_h / (gamma + beta))^(1/n) [N m] (000, text after eq 16)."""
-    return (EJh / (gamma + beta)) ** (1.0 / n)
-
-
 @dataclass
 class SolverOptions:
     """Discretisation: ``n_elements`` two-node elements; ``steps_per_cycle`` load steps per
@@ -186,18 +185,13 @@ class SolverOptions:
 
 @numba.njit(cache=True, inline="always")
 def _g(M, h, EJh, gam, bet, n):
-    """dM_h/dmu of eq 16 and its derivative in M_h, for an increment of sign sgn(h)."""
-    aM = abs(M)
-    sM = 1.0 if M > 0.0 else (-1.0 if M < 0.0 else 0.0)
+    """dM_h/dmu of eq 16 and its derivative in M_h, for an increment of sign sgn(h): eq 16 is
+    the Bouc-Wen law of 000 eq 1 in the curvature (k = EJ_h), so the slope is
+    :func:`cablesvc.models.boucwen.bouc_wen_rate`'s dz'/dv at v = sgn(h) and its derivative
+    in M_h is dz'/dz / v (v = +-1; h = 0 reads only the slope)."""
     sh = 1.0 if h > 0.0 else (-1.0 if h < 0.0 else 0.0)
-    c = gam + bet * sM * sh
-    if aM > 0.0:
-        p1 = aM ** (n - 1.0)
-    else:
-        p1 = 0.0 if n > 1.0 else 1.0
-    g = EJh - c * p1 * aM
-    gp = -c * n * p1 * sM
-    return g, gp
+    _, g, gz, _p = bouc_wen_rate(EJh, bet, gam, n, sh, M)
+    return g, gz * sh
 
 
 @numba.njit(cache=True)
@@ -412,7 +406,7 @@ def _run_lane(mode, L, EA, GAs, EJ, par, path, ne, rec0, sub_frac, tol, max_iter
     mu_save = np.empty(ne)
     Mh_save = np.empty(ne)
     if EJh > 0.0 and gam + bet > 0.0:
-        Msat = (EJh / (gam + bet)) ** (1.0 / n)
+        Msat = (EJh / (gam + bet)) ** (1.0 / n)         # the law's bound (models.boucwen.bouc_wen_bound)
         mu_y = Msat / EJh
         mscale = Msat
     else:
@@ -554,10 +548,10 @@ def _as_params(params) -> np.ndarray:
     if P.shape[1] == 5:
         P = np.hstack([P, np.zeros((P.shape[0], 1))])
     if P.shape[1] != 6:
-        raise ValueError(f"params: expected (lanes, 5 or 6) = psi, delta, gamma, beta, n[, k3]; got {P.shape}")
+        raise SimulationError(f"params: expected (lanes, 5 or 6) = psi, delta, gamma, beta, n[, k3]; got {P.shape}")
     bad = (P[:, 0] <= 0) | (P[:, 1] <= 0) | (P[:, 1] > 1) | (P[:, 4] < 1.0) | (P[:, 2] + P[:, 3] < 0)
     if np.any(bad):
-        raise ValueError(f"params: need psi > 0, 0 < delta <= 1, n >= 1, gamma + beta >= 0 (lanes {np.flatnonzero(bad).tolist()})")
+        raise SimulationError(f"params: need psi > 0, 0 < delta <= 1, n >= 1, gamma + beta >= 0 (lanes {np.flatnonzero(bad).tolist()})")
     return np.ascontiguousarray(P)
 
 
@@ -581,13 +575,13 @@ def solve_path(section: Section, length: float, params, path, *, mode: str = "gu
     if X.shape[0] == 1 and lanes > 1:
         X = np.repeat(X, lanes, axis=0)
     if P.shape[0] != X.shape[0]:
-        raise ValueError(f"params has {P.shape[0]} lanes but path has {X.shape[0]}")
+        raise SimulationError(f"params has {P.shape[0]} lanes but path has {X.shape[0]}")
     X = np.ascontiguousarray(X)
     if mode not in MODES:
-        raise ValueError(f"mode must be one of {sorted(MODES)}")
+        raise SimulationError(f"mode must be one of {sorted(MODES)}")
     ne = int(opt.n_elements)
     if ne < 1:
-        raise ValueError("n_elements must be >= 1")
+        raise SimulationError("n_elements must be >= 1")
     nsteps = X.shape[1]
     rec0 = int(record_from)
     nrec = nsteps - rec0
@@ -596,11 +590,7 @@ def solve_path(section: Section, length: float, params, path, *, mode: str = "gu
     status = np.zeros(lanes, dtype=np.int64)
     args = (MODES[mode], float(length), section.EA, section.GAs, section.EJ, P, X, ne, rec0,
             float(opt.substep_fraction), float(opt.tol), int(opt.max_iter), tip, gauss, status)
-    threads = numba.get_num_threads()
-    if opt.threads and threads > 1 and lanes >= 2:
-        _run_lanes_parallel(*args)
-    else:
-        _run_lanes_serial(*args)
+    run_lanes(_run_lanes_parallel, _run_lanes_serial, lanes, *args, threads=opt.threads)
     failed = status != 0
     tip[failed] = np.nan
     gauss[failed] = np.nan

@@ -48,7 +48,8 @@ from typing import Any, Optional
 import numpy as np
 from scipy.optimize import least_squares
 
-from cablesvc.simulate.oscillator import FS, UPSAMPLE, bandlimited_upsample, decimate, integrate_lanes, simulate_fine
+from cablesvc.errors import DiscoveryError
+from cablesvc.simulate.oscillator import FS, UPSAMPLE, coarse_output, fine_input, integrate_lanes, simulate_fine
 
 __all__ = ["OSC_TERMS", "OscModel", "simulate_general", "simulate_model", "run_boucwen_discovery",
            "boucwen_summary"]
@@ -82,14 +83,6 @@ def simulate_general(u_fine: np.ndarray, h: float, P: np.ndarray):
     return integrate_lanes(u_fine, h, P)
 
 
-def reconstruct(u: np.ndarray, r: int, hold: bool, periodic: bool) -> np.ndarray:
-    """Fine input from the 750 Hz samples: band-limited (the benchmark's) or held constant
-    between samples (zero-order hold)."""
-    if hold:
-        return np.repeat(np.asarray(u, float), r)
-    return bandlimited_upsample(u, r, periodic=periodic)
-
-
 def simulate_model(P: np.ndarray, u: np.ndarray, *, hold: bool = False, periodic: bool = True, periods: int = 1,
                    tail: int = 0, factors=MS_FACTORS, keep: Optional[slice] = None, r: int = UPSAMPLE) -> np.ndarray:
     """Output at 750 Hz of the models ``P`` (lanes, 11) for the input samples ``u``:
@@ -97,22 +90,13 @@ def simulate_model(P: np.ndarray, u: np.ndarray, *, hold: bool = False, periodic
     no extra force run the benchmark's own integrator
     (:func:`cablesvc.simulate.oscillator.simulate_fine`)."""
     P = np.atleast_2d(np.asarray(P, float))
-    uf = reconstruct(u, r, hold, periodic)
-    if periodic:
-        reps = [uf] * int(periods)
-        if tail:
-            reps.append(uf[: int(tail) * r])
-        uf = np.concatenate(reps)
+    uf = fine_input(u, r, periodic=periodic, periods=periods, tail=tail, hold=hold)
     h = 1.0 / (FS * r)
     if np.all(P[:, 7:10] == 0.0):
         y, _, ok = simulate_fine(uf, h, P[:, :7])
     else:
         y, ok = simulate_general(uf, h, P)
-    if factors:
-        y = decimate(np.nan_to_num(y, nan=0.0), factors)
-        y[~ok] = np.nan
-    else:
-        y = y[:, ::r]
+    y = coarse_output(y, ok, r, factors)
     return y[:, keep] if keep is not None else y
 
 
@@ -469,7 +453,7 @@ def run_boucwen_discovery(data_dir=None, hold: bool = False, *, terms: Optional[
     data.truth = None                      # discovery never looks at the answer key
     u, y = data.train_u, data.train_y
     if u.size < N_ALL:
-        raise ValueError(f"train.h5 must hold five periods of {PERIOD} samples")
+        raise DiscoveryError(f"train.h5 must hold five periods of {PERIOD} samples")
     u_period = u[:PERIOD]
     noise = estimate_noise(y, PERIOD)
     sc = _scales(u, y)

@@ -41,6 +41,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from cablesvc.errors import IdentifyError
 from cablesvc.simulate.oscillator import (
     BENCHMARK_TRUTH, FS, PARAM_NAMES, PARAM_UNITS, UPSAMPLE, as_theta, bandlimited_upsample, decimate,
     simulate, simulate_fine,
@@ -135,7 +136,7 @@ def load_benchmark(path: str | os.PathLike | None = None, *, tests: bool = True)
     """Read train.h5 (and test.h5 when ``tests``) and truth.json (if any) from ``path``
     (default :func:`data_dir`). Layout: group ``multisine`` with ``u``, ``y``, ``fs`` in
     train.h5; groups ``multisine`` and ``sinesweep`` in test.h5.
-    Missing or unreadable files raise a one-line FileNotFoundError / ValueError naming the
+    Missing or unreadable files raise a one-line FileNotFoundError / IdentifyError naming the
     file (and the HDF5 object)."""
     import h5py
 
@@ -150,9 +151,9 @@ def load_benchmark(path: str | os.PathLike | None = None, *, tests: bool = True)
             with h5py.File(file, "r") as f:
                 return fn(f)
         except KeyError as e:
-            raise ValueError(f"{file}: missing HDF5 group or dataset ({e.args[0] if e.args else e})") from None
+            raise IdentifyError(f"{file}: missing HDF5 group or dataset ({e.args[0] if e.args else e})") from None
         except OSError as e:
-            raise ValueError(f"{file}: not a readable HDF5 file ({e})") from None
+            raise IdentifyError(f"{file}: not a readable HDF5 file ({e})") from None
 
     data = read(train, lambda f: BenchmarkData(train_u=_read(f["multisine"], "u"), train_y=_read(f["multisine"], "y"),
                                                fs=float(_read(f["multisine"], "fs")[0]), path=d))
@@ -231,15 +232,15 @@ class ParamSpace:
             b.update({k: tuple(map(float, v)) for k, v in bounds.items()})
         unknown = set(b) - set(SEARCH_NAMES)
         if unknown:
-            raise ValueError(f"unknown parameter(s) in bounds: {sorted(unknown)}; names are {SEARCH_NAMES}")
+            raise IdentifyError(f"unknown parameter(s) in bounds: {sorted(unknown)}; names are {SEARCH_NAMES}")
         self.lb = np.array([b[n][0] for n in SEARCH_NAMES], float)
         self.ub = np.array([b[n][1] for n in SEARCH_NAMES], float)
         if np.any(self.ub <= self.lb):
-            raise ValueError("bounds: every upper bound must exceed its lower bound")
+            raise IdentifyError("bounds: every upper bound must exceed its lower bound")
         if np.any(self.lb[list(self.LOG)] <= 0):
-            raise ValueError(f"bounds: {[SEARCH_NAMES[i] for i in self.LOG]} must have positive bounds")
+            raise IdentifyError(f"bounds: {[SEARCH_NAMES[i] for i in self.LOG]} must have positive bounds")
         if self.lb[6] <= 0:
-            raise ValueError("bounds: nu must be > 0")
+            raise IdentifyError("bounds: nu must be > 0")
         self.qlb = self.search_to_q(self.lb)
         self.qub = self.search_to_q(self.ub)
 
@@ -438,7 +439,7 @@ def identify(u: np.ndarray, y: np.ndarray, *, options: IdentifyOptions | None = 
     u = np.asarray(u, float).reshape(-1)
     y = np.asarray(y, float).reshape(-1)
     if u.size % period:
-        raise ValueError(f"identify: the record ({u.size} samples) must hold whole periods of {period}")
+        raise IdentifyError(f"identify: the record ({u.size} samples) must hold whole periods of {period}")
     u_period = u[:period]
     space = ParamSpace(opt.bounds)
     names = list(PARAM_NAMES)
@@ -607,7 +608,7 @@ def generate_benchmark_data(directory: str | os.PathLike, params: dict[str, floa
     if params:
         unknown = set(params) - set(PARAM_NAMES)
         if unknown:
-            raise ValueError(f"unknown parameter(s) {sorted(unknown)}")
+            raise IdentifyError(f"unknown parameter(s) {sorted(unknown)}")
         p.update({k: float(v) for k, v in params.items()})
     th = as_theta(p)
     d = Path(directory)
@@ -618,7 +619,7 @@ def generate_benchmark_data(directory: str | os.PathLike, params: dict[str, floa
     def run(u_fine, factors):
         y, _, ok = simulate_fine(u_fine, h, th)
         if not ok[0]:
-            raise ValueError(f"generate_benchmark_data: the simulation diverged for {p}")
+            raise IdentifyError(f"generate_benchmark_data: the simulation diverged for {p}")
         return decimate(y[0], factors)
 
     # train

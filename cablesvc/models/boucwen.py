@@ -1,9 +1,13 @@
-"""Bouc-Wen hysteresis with a cubic term (eqs 1-5 of 000) and its integrators."""
+"""Bouc-Wen hysteresis with a cubic term (eqs 1-5 of 000) and its integrators; the one home
+of the Bouc-Wen law (section "the law" below) that the models, the discovery term
+(models/terms.py), the benchmark oscillator (simulate/oscillator.py) and the beam
+(beam/solver.py) all call."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from cablesvc.models.base import CableModel, ModelParameterError, ModelState, is_int
@@ -36,6 +40,84 @@ def max_live_substeps(integrator: str) -> int:
     """The most Bouc-Wen sub-steps per tick the live service accepts for ``integrator`` (see
     the derivation above): 99 semi-implicit, 42 rk4."""
     return int(LIVE_TICK_S * LIVE_MODEL_SHARE / (NUMPY_CALL_S * CALLS_PER_SUBSTEP[integrator]))
+
+
+# ---- the law -------------------------------------------------------------------------
+# Eq 1 of 000 (= eq 2 of the Bouc-Wen benchmark, = eq 4.1 of 001, = the beam's moment law,
+# eq 16 of 000, with z = M_h and x = mu), written once:
+#
+#     dz/dx = k - (gamma + beta sgn(z dx)) |z|^n          (rate independent, per increment)
+#     z'    = k x' - beta |x'| |z|^(n-1) z - gamma x' |z|^n  (the same law in time)
+#
+# k [z/x], beta and gamma [1/(x z^(n-1))], n [-]. Forms:
+# * bouc_wen_slope: numpy, dz/dx on (lanes, cables) arrays into given buffers (the live
+#   kernel's models: BoucWenIntegrator);
+# * bouc_wen_rate: scalar numba kernel, z' and its derivatives in x' and z (the oscillator's
+#   Newmark-Newton loop with v = y'; the beam's hysteresis update with v = sgn(dmu), where
+#   dz'/dv is the slope dz/dx);
+# * the backward-Euler step for n = 1 (the discovery term's normalised z, k = 1):
+#   bouc_wen_step_n1 (numba, offline over a record) and bouc_wen_step_n1_np (numpy, live, tick
+#   by tick); the same arithmetic, so offline and live agree to the last bit.
+
+def bouc_wen_slope(z, sdx, k, beta, gamma, n, out, c, a):
+    """out = dz/dx = k - (gamma + beta sgn(z sdx)) |z|^n (numpy, in place; sdx = sgn(dx));
+    leaves c = gamma + beta sgn(z sdx) in ``c`` and |z|^n in ``a``. Returns out."""
+    np.multiply(z, sdx, c)
+    np.sign(c, c)
+    np.multiply(c, beta, c)
+    np.add(c, gamma, c)
+    np.absolute(z, a)
+    np.power(a, n, a)
+    np.multiply(c, a, out)
+    np.subtract(k, out, out)
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def bouc_wen_rate(k, beta, gamma, n, v, z):
+    """z' = k v - beta |v| |z|^(n-1) z - gamma v |z|^n for the rate v = x' (scalar numba).
+    Returns (z', dz'/dv, dz'/dz, |z|^(n-1)); dz'/dv is the slope dz/dx of the increment's
+    direction sgn(v) (also at v = 0, where it is the slope of the no-sign branch)."""
+    az = abs(z)
+    if n == 1.0:
+        p = 1.0
+    elif az > 0.0:
+        p = az ** (n - 1.0)
+    else:
+        p = 0.0 if n > 1.0 else 1e300
+    sv = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
+    sz = 1.0 if z > 0.0 else (-1.0 if z < 0.0 else 0.0)
+    pz = p * z                      # |z|^(n-1) z
+    paz = p * az                    # |z|^n
+    g = k * v - beta * abs(v) * pz - gamma * v * paz
+    gv = k - beta * sv * pz - gamma * paz
+    gz = -n * p * (beta * abs(v) + gamma * v * sz)
+    return g, gv, gz, p
+
+
+@numba.njit(cache=True, inline="always")
+def bouc_wen_step_n1(z, dx, k, beta, gamma):
+    """z after the increment dx by the backward-Euler step of the law with n = 1, the sign
+    taken at the start: z1 = (z + k dx) / (1 + (gamma + beta sgn(z dx)) |dx|) (implicit in
+    |z|, so stable for any dx when gamma > |beta|; z saturates at k / (gamma + beta))."""
+    p = z * dx
+    s = 1.0 if p > 0 else (-1.0 if p < 0 else 0.0)
+    return (z + k * dx) / (1.0 + (gamma + beta * s) * abs(dx))
+
+
+def bouc_wen_step_n1_np(z, dx, beta, gamma, s, den):
+    """:func:`bouc_wen_step_n1` with k = 1 on arrays, z updated in place (``s``, ``den``:
+    buffers of z's shape). The same operations in the same order as the numba form."""
+    np.multiply(z, dx, out=s)
+    np.sign(s, out=s)
+    np.multiply(s, beta, out=den)
+    np.add(den, gamma, out=den)
+    np.abs(dx, out=s)
+    np.multiply(den, s, out=den)
+    np.add(den, 1.0, out=den)
+    np.add(z, dx, out=z)
+    np.divide(z, den, out=z)
+    return z
 
 
 class BoucWenIntegrator:
@@ -82,17 +164,8 @@ class BoucWenIntegrator:
         self._neg_bound = -self.z_bound
 
     def _rhs(self, z, out):
-        """out = dz/dx = k_d - (gamma + beta sgn(z sdx)) |z|^n ; also leaves c in self._c and |z|^n in self._a."""
-        c, a = self._c, self._a
-        np.multiply(z, self._sdx, c)
-        np.sign(c, c)
-        np.multiply(c, self.beta, c)
-        np.add(c, self.gamma, c)
-        np.absolute(z, a)
-        np.power(a, self.n, a)
-        np.multiply(c, a, out)
-        np.subtract(self.k_d, out, out)
-        return out
+        """out = dz/dx (:func:`bouc_wen_slope`); also leaves c in self._c and |z|^n in self._a."""
+        return bouc_wen_slope(z, self._sdx, self.k_d, self.beta, self.gamma, self.n, out, self._c, self._a)
 
     def advance(self, z: np.ndarray, dx: np.ndarray) -> np.ndarray:
         """Update z in place over the elongation increment dx [m]."""

@@ -45,9 +45,13 @@ import numpy as np
 from scipy import fft as sfft
 from scipy.signal import firwin, upfirdn
 
+from cablesvc.errors import SimulationError
+from cablesvc.lanes import run_lanes
+from cablesvc.models.boucwen import bouc_wen_rate
+
 __all__ = [
     "PARAM_NAMES", "PARAM_UNITS", "BENCHMARK_TRUTH", "FS", "UPSAMPLE",
-    "bandlimited_upsample", "decimate_fir", "decimate", "simulate_fine", "simulate",
+    "bandlimited_upsample", "decimate_fir", "decimate", "fine_input", "coarse_output", "simulate_fine", "simulate",
     "as_theta",
 ]
 
@@ -70,7 +74,7 @@ def as_theta(params) -> np.ndarray:
         return np.array([[float(params[n]) for n in PARAM_NAMES]])
     th = np.atleast_2d(np.asarray(params, dtype=np.float64))
     if th.shape[-1] != len(PARAM_NAMES) or th.ndim != 2:
-        raise ValueError(f"theta must be (lanes, {len(PARAM_NAMES)}), got {th.shape}")
+        raise SimulationError(f"theta must be (lanes, {len(PARAM_NAMES)}), got {th.shape}")
     return np.ascontiguousarray(th)
 
 
@@ -135,7 +139,7 @@ def bandlimited_upsample(u: np.ndarray, r: int, periodic: bool = True, half_widt
         return sfft.irfft(Uf, m) * r
     pad = half_width + 1
     if n < pad + 1:
-        raise ValueError(f"bandlimited_upsample: non-periodic record needs > {pad} samples")
+        raise SimulationError(f"bandlimited_upsample: non-periodic record needs > {pad} samples")
     left = 2.0 * u[0] - u[pad:0:-1]
     right = 2.0 * u[-1] - u[-2:-2 - pad:-1]
     ext = np.concatenate([left, u, right])
@@ -161,7 +165,7 @@ def decimate_fir(x: np.ndarray, r: int, nfilt: int = DECIMATION_NFILT) -> np.nda
         return x.copy()
     nf = nfilt + 1
     if n < 2 * nf + 2:
-        raise ValueError(f"decimate_fir: record of {n} samples too short for a {nf}-tap filter")
+        raise SimulationError(f"decimate_fir: record of {n} samples too short for a {nf}-tap filter")
     b = firwin(nf, 1.0 / r)
     left = 2.0 * x[..., :1] - x[..., nf:0:-1]
     right = 2.0 * x[..., -1:] - x[..., n - 2:n - 2 - 2 * nf:-1]
@@ -195,26 +199,6 @@ def decimate(x: np.ndarray, factors=(2, 2, 5)) -> np.ndarray:
 
 # ---- the integrator --------------------------------------------------------------------
 
-@numba.njit(cache=True, inline="always")
-def _bw_terms(A, B, D, nu, v, z):
-    """g = z', dg/dv, dg/dz and |z|^(nu-1) of the Bouc-Wen law (benchmark eq 2)."""
-    az = abs(z)
-    if nu == 1.0:
-        p = 1.0
-    elif az > 0.0:
-        p = az ** (nu - 1.0)
-    else:
-        p = 0.0 if nu > 1.0 else 1e300
-    sv = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
-    sz = 1.0 if z > 0.0 else (-1.0 if z < 0.0 else 0.0)
-    pz = p * z                      # |z|^(nu-1) z
-    paz = p * az                    # |z|^nu
-    g = A * v - B * abs(v) * pz - D * v * paz
-    gv = A - B * sv * pz - D * paz
-    gz = -nu * p * (B * abs(v) + D * v * sz)
-    return g, gv, gz, p
-
-
 #: extra restoring forces beyond the benchmark's equation, after the 7 parameters of
 #: :data:`PARAM_NAMES` in a lane's parameter vector: k3 y^3 [N/m^3], c2 v|v| [N s^2/m^2],
 #: Fc tanh(v / v_s) [N], [m/s] (``cablesvc.discover.oscillator_case`` fits them; 0 = the
@@ -235,12 +219,14 @@ def _extra_force(y, v, k3, c2, fc, vs):
 @numba.njit(cache=True, inline="always")
 def _trial(m, c, k, A, B, D, nu, k3, c2, fc, vs, h, hh, y, v, a, z, g, ui, y1, z1):
     """At the trial end-of-step state (y1, z1): the Newmark (1/4, 1/2) velocity v1 and
-    acceleration a1, the Bouc-Wen terms g1, dg/dv, dg/dz, |z|^(nu-1) there, the extra force's
-    derivatives df/dy, df/dv, and the residuals of the equation of motion (r1) and of the
-    trapezoidal z update (r2)."""
+    acceleration a1, the Bouc-Wen law there (g1, dg/dv, dg/dz, |z|^(nu-1) from
+    :func:`cablesvc.models.boucwen.bouc_wen_rate`: the benchmark's eq 2 is eq 1 of 000 with
+    k = alpha, beta = beta_gamma, gamma = beta_delta), the extra force's derivatives df/dy,
+    df/dv, and the residuals of the equation of motion (r1) and of the trapezoidal z update
+    (r2)."""
     v1 = 2.0 / h * (y1 - y) - v
     a1 = 4.0 / hh * (y1 - y) - 4.0 / h * v - a
-    g1, gv1, gz1, p1 = _bw_terms(A, B, D, nu, v1, z1)
+    g1, gv1, gz1, p1 = bouc_wen_rate(A, B, D, nu, v1, z1)
     f1, fy1, fv1 = _extra_force(y1, v1, k3, c2, fc, vs)
     r1 = m * a1 + c * v1 + k * y1 + z1 + f1 - ui
     r2 = z1 - z - 0.5 * h * (g + g1)
@@ -266,7 +252,7 @@ def _run_lane(u, h, th, y0, v0, z0, ycap, out_y, out_s, sens):
     z = z0
     f0 = _extra_force(y, v, k3, c2, fc, vs)[0]
     a = (u[0] - c * v - k * y - z - f0) / m
-    g, gv, gz, p = _bw_terms(A, B, D, nu, v, z)
+    g, gv, gz, p = bouc_wen_rate(A, B, D, nu, v, z)
     out_y[0] = y
     # sensitivities of the state (y, v, a, z, g) to the 7 parameters
     sy = np.zeros(7)
@@ -386,11 +372,10 @@ def _run_lanes_serial(u, h, theta, y0, v0, z0, ycap, out_y, out_s, sens, status)
 
 
 def _run_lanes(u, h, theta, y0, v0, z0, ycap, out_y, out_s, sens, status):
-    """Lanes in numba threads when there are at least two per thread (waking the thread
-    pool costs milliseconds on a loaded machine), serially otherwise."""
-    threads = numba.get_num_threads()
-    run = _run_lanes_parallel if threads > 1 and theta.shape[0] >= 2 * threads else _run_lanes_serial
-    run(u, h, theta, y0, v0, z0, ycap, out_y, out_s, sens, status)
+    """Lanes in numba threads when there are at least two per thread, serially otherwise
+    (:func:`cablesvc.lanes.run_lanes`)."""
+    run_lanes(_run_lanes_parallel, _run_lanes_serial, theta.shape[0], u, h, theta, y0, v0, z0, ycap, out_y, out_s,
+              sens, status, min_per_thread=2)
 
 
 def simulate_fine(u_fine: np.ndarray, h: float, theta, *, y0: float = 0.0, v0: float = 0.0, z0: float = 0.0,
@@ -422,6 +407,32 @@ def simulate_fine(u_fine: np.ndarray, h: float, theta, *, y0: float = 0.0, v0: f
     return out_y, (out_s if sensitivities else None), ok
 
 
+def fine_input(u: np.ndarray, r: int, *, periodic: bool = True, periods: int = 1, tail: int = 0,
+               hold: bool = False) -> np.ndarray:
+    """The fine input (``r`` values per sample of ``u``) that a simulation integrates:
+    :func:`bandlimited_upsample` (``periodic``), or the samples held constant for ``r`` fine
+    steps (``hold``, zero-order hold); a periodic record repeated ``periods`` times, plus
+    ``tail`` samples of its next period."""
+    uf = np.repeat(np.asarray(u, float), r) if hold else bandlimited_upsample(u, r, periodic=periodic)
+    if periodic:
+        reps = [uf] * int(periods)
+        if tail:
+            reps.append(uf[: int(tail) * r])
+        uf = np.concatenate(reps)
+    return uf
+
+
+def coarse_output(y: np.ndarray, ok: np.ndarray, r: int, factors) -> np.ndarray:
+    """The fine output ``y`` (lanes, n) at the sample rate: decimated by ``factors``
+    (:func:`decimate`, diverged lanes NaN), or every ``r``-th fine sample when ``factors`` is
+    None or ()."""
+    if factors:
+        y = decimate(np.nan_to_num(y, nan=0.0), factors)
+        y[~ok] = np.nan
+        return y
+    return y[:, ::r]
+
+
 def simulate(u: np.ndarray, theta, *, fs: float = FS, upsample: int = UPSAMPLE, periodic: bool = True,
              periods: int = 1, keep: slice | None = None, factors=(2, 2, 5), tail: int = 0,
              sensitivities: bool = False, **kw):
@@ -438,22 +449,11 @@ def simulate(u: np.ndarray, theta, *, fs: float = FS, upsample: int = UPSAMPLE, 
     Returns ``(y, dy, ok)`` as :func:`simulate_fine` but at ``fs``.
     """
     r = int(upsample)
-    uf = bandlimited_upsample(u, r, periodic=periodic)
-    if periodic:
-        reps = [uf] * int(periods)
-        if tail:
-            reps.append(uf[: int(tail) * r])
-        uf = np.concatenate(reps)
+    uf = fine_input(u, r, periodic=periodic, periods=periods, tail=tail)
     y, dy, ok = simulate_fine(uf, 1.0 / (fs * r), theta, sensitivities=sensitivities, **kw)
-    if factors:
-        y = decimate(np.nan_to_num(y, nan=0.0), factors)
-        y[~ok] = np.nan
-        if dy is not None:
-            dy = decimate(dy, factors)
-    else:
-        y = y[:, ::r]
-        if dy is not None:
-            dy = dy[:, :, ::r]
+    y = coarse_output(y, ok, r, factors)
+    if dy is not None:
+        dy = decimate(dy, factors) if factors else dy[:, :, ::r]
     if keep is not None:
         y = y[:, keep]
         if dy is not None:
