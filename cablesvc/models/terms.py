@@ -36,6 +36,7 @@ from typing import Any, Optional
 import numba
 import numpy as np
 
+from cablesvc.models.boucwen import bouc_wen_step_n1, bouc_wen_step_n1_np
 from cablesvc.models.catenary import SAG_NEWTON, irvine_tension
 from cablesvc.models.reversal import reversal_amplitude
 
@@ -174,27 +175,25 @@ def smooth_sign(v: np.ndarray, v_s: Any, out: Optional[np.ndarray] = None) -> np
 @numba.njit(cache=True)
 def _bw_z(x, beta, gamma):
     """Normalised Bouc-Wen state z [m] driven by x [m] (000 eq 2 with A = 1, n = 1): one
-    semi-implicit step per tick, see :func:`bouc_wen_step` (the same formula)."""
+    backward-Euler step of the law per tick (:func:`cablesvc.models.boucwen.bouc_wen_step_n1`;
+    this term's beta is the law's gamma and its gamma the law's beta)."""
     N = x.shape[0]
     z = np.zeros(N)
     zk = 0.0
     for k in range(1, N):
-        dx = x[k] - x[k - 1]
-        p = zk * dx
-        s = 1.0 if p > 0 else (-1.0 if p < 0 else 0.0)
-        den = 1.0 + (beta + gamma * s) * abs(dx)
-        zk = (zk + dx) / den
+        zk = bouc_wen_step_n1(zk, x[k] - x[k - 1], 1.0, gamma, beta)
         z[k] = zk
     return z
 
 
 def bouc_wen_z(x: np.ndarray, beta: float, gamma: float) -> np.ndarray:
     """Bouc-Wen hysteretic displacement z [m] driven by the elongation x [m] (N,):
-    dz = dx (1 - (beta sgn(z dx) + gamma) |z|) (000 eq 2, A = 1, n = 1), integrated per
-    tick by the semi-implicit step z' = (z + dx) / (1 + (beta + gamma sgn(z dx)) |dx|)
-    (implicit in |z|, so stable for any dx when beta > |gamma|); z saturates at
-    1 / (beta + gamma) [m]. ``beta``, ``gamma`` [1/m]. The live form
-    (:class:`BoucWenHysteresis`) runs the same step."""
+    dz = dx (1 - (beta + gamma sgn(z dx)) |z|) (000 eq 2, A = 1, n = 1, with this term's beta
+    and gamma in the roles of 000's gamma and beta), integrated per tick by the backward-Euler
+    step z' = (z + dx) / (1 + (beta + gamma sgn(z dx)) |dx|) of
+    :func:`cablesvc.models.boucwen.bouc_wen_step_n1` (implicit in |z|, so stable for any dx
+    when beta > |gamma|); z saturates at 1 / (beta + gamma) [m]. ``beta``, ``gamma`` [1/m].
+    The live form (:class:`BoucWenHysteresis`) runs the same step."""
     return _bw_z(np.ascontiguousarray(x, dtype=np.float64), float(beta), float(gamma))
 
 
@@ -707,7 +706,7 @@ class BoucWenHysteresis(Term):
     """Hysteresis missing altogether (000 eqs 1-2, Bouc-Wen): a hysteretic force alpha_z z
     with z driven by the elongation,
 
-        dz = dx (1 - (beta sgn(z dx) + gamma) |z|),   delta_f = k_z z + k_x (x - x_mean)
+        dz = dx (1 - (beta + gamma sgn(z dx)) |z|),   delta_f = k_z z + k_x (x - x_mean)
 
     k_z [N/m], k_x [N/m]; the loop shape (beta, gamma) [1/m] on a grid set by the saturation
     z_max = 1 / (beta + gamma) relative to the elongation's spread; z by the semi-implicit
@@ -921,7 +920,8 @@ class _SagLive(LiveTerm):
 
 
 class _BoucWenLive(LiveTerm):
-    """Bouc-Wen z per (lane, cable), the step of :func:`bouc_wen_z`."""
+    """Bouc-Wen z per (lane, cable), the step of :func:`bouc_wen_z` in its numpy form
+    (:func:`cablesvc.models.boucwen.bouc_wen_step_n1_np`)."""
 
     def __init__(self, term, table, lanes, m):
         super().__init__(term, table, lanes, m)
@@ -938,15 +938,8 @@ class _BoucWenLive(LiveTerm):
         self.started[0] = True
         np.subtract(g.x, self.x_prev, out=self.dx)
         np.copyto(self.x_prev, g.x)
-        np.multiply(self.z, self.dx, out=self.s)
-        np.sign(self.s, out=self.s)
-        np.multiply(self.s, self.H["gamma"], out=self.den)
-        np.add(self.den, self.H["beta"], out=self.den)
-        np.abs(self.dx, out=self.s)
-        np.multiply(self.den, self.s, out=self.den)
-        np.add(self.den, 1.0, out=self.den)
-        np.add(self.z, self.dx, out=self.z)
-        np.divide(self.z, self.den, out=self.z)
+        # the law's beta is this term's gamma, its gamma this term's beta (see _bw_z)
+        bouc_wen_step_n1_np(self.z, self.dx, self.H["gamma"], self.H["beta"], self.s, self.den)
         self.term.law(self.z, g.x, self.R["x_mean"], self.cols)
         np.multiply(self.cols, self.P[:, None, :], out=self.prod)
         np.sum(self.prod, axis=0, out=self.buf)
