@@ -110,7 +110,7 @@ def test_write_input_refuses_seq_outside_int64(tmp_path, seq):
 
 
 def test_write_input_refuses_t_whose_log_time_rounds_past_64_bits(tmp_path):
-    from cablesvc.recording.mcap_io import _LOG_TIME_MAX_S
+    from cablesvc.recording.mcap_writer import _LOG_TIME_MAX_S
 
     with McapRecordingWriter(tmp_path / "t.mcap", "r") as w:
         with pytest.raises(ValueError, match="log_time"):

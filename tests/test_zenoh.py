@@ -23,7 +23,7 @@ import zenoh
 
 from cablesvc.alarms import AlarmEvent
 from cablesvc.kernel.predictor import TickOutput
-from cablesvc.recording.format import ALARM_JSON_SCHEMA, FORCES_JSON_SCHEMA
+from cablesvc.recording import ALARM_JSON_SCHEMA, FORCES_JSON_SCHEMA
 from cablesvc.service.messages import (
     ALARM_SCHEMA,
     COMPACT_ENCODING,

@@ -96,7 +96,7 @@ class AlarmEvent:
 
     def payload(self, robot: str | None = None) -> dict[str, Any]:
         """JSON-able dict matching ``cablesvc.service.messages.ALARM_SCHEMA`` (a superset of
-        the MCAP alarm schema of ``cablesvc.recording.format``). Non-finite numbers become
+        the MCAP alarm schema of ``cablesvc.recording.schemas``). Non-finite numbers become
         null. ``robot`` is added when given."""
         t = _num(self.t)
         p: dict[str, Any] = {

@@ -2,54 +2,25 @@
 
 ``read_recording`` / ``write_recording`` dispatch on the file suffix; ``iter_inputs``
 streams ticks; ``McapRecordingWriter`` writes a live recording tick by tick (plus the
-output topics in ``docs/recording.md``).
+output topics in ``docs/recording.md``). ``RecordingError`` (a
+:class:`cablesvc.errors.RecordingError`) names the file, the place and the reason.
+
+Modules, each importing only those before it: ``schemas`` (the MCAP topics and their JSON
+schemas), ``format`` (versions, :class:`Recording`, ticks, errors), ``protobuf_block`` (the
+binary block encoding), ``mcap_json`` (the JSON encoding), ``mcap_layout`` (an MCAP file's
+record structure, complete or cut short), ``mcap_writer``, ``mcap_reader``, ``csv_io``,
+``files`` (dispatch on the suffix), ``chunks`` (a long recording in pieces).
 """
 
-from .csv_io import (
-    POSE_COLUMNS,
-    csv_header,
-    iter_csv_inputs,
-    read_csv,
-    read_csv_metadata,
-    write_csv,
-)
-from .format import (
-    ALARM_JSON_SCHEMA,
-    ALARM_SCHEMA_NAME,
-    ALARMS_TOPIC,
-    BLOCK_FORMAT_VERSION,
-    ENCODINGS,
-    FORCES_JSON_SCHEMA,
-    FORCES_SCHEMA_NAME,
-    FORCES_TOPIC,
-    FORMAT_VERSION,
-    INPUT_JSON_SCHEMA,
-    INPUT_SCHEMA_NAME,
-    INPUT_TOPIC,
-    MESSAGE_ENCODING,
-    METADATA_NAME,
-    OUTPUT_TOPICS,
-    SCHEMA_ENCODING,
-    Recording,
-    RecordingError,
-    RecordingTruncatedWarning,
-    Tick,
-    Truncation,
-    iter_inputs,
-    read_metadata,
-    read_recording,
-    write_recording,
-)
-from .mcap_io import (
-    DEFAULT_BLOCK_TICKS,
-    DEFAULT_CHUNK_SIZE,
-    DEFAULT_ENCODING,
-    McapRecordingWriter,
-    iter_mcap_inputs,
-    read_mcap,
-    read_mcap_metadata,
-    write_mcap,
-)
+from .csv_io import POSE_COLUMNS, csv_header, iter_csv_inputs, read_csv, read_csv_metadata, write_csv
+from .files import iter_inputs, read_metadata, read_recording, write_recording
+from .format import (BLOCK_FORMAT_VERSION, ENCODINGS, FORMAT_VERSION, METADATA_NAME, Recording, RecordingError,
+                     RecordingTruncatedWarning, Tick, Truncation)
+from .mcap_reader import iter_mcap_inputs, read_mcap, read_mcap_metadata
+from .mcap_writer import DEFAULT_BLOCK_TICKS, DEFAULT_CHUNK_SIZE, DEFAULT_ENCODING, McapRecordingWriter, write_mcap
+from .schemas import (ALARM_JSON_SCHEMA, ALARM_SCHEMA_NAME, ALARMS_TOPIC, FORCES_JSON_SCHEMA, FORCES_SCHEMA_NAME,
+                      FORCES_TOPIC, INPUT_JSON_SCHEMA, INPUT_SCHEMA_NAME, INPUT_TOPIC, MESSAGE_ENCODING, OUTPUT_TOPICS,
+                      SCHEMA_ENCODING)
 
 __all__ = [
     "ALARM_JSON_SCHEMA",

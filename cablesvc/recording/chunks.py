@@ -14,7 +14,10 @@ from __future__ import annotations
 import warnings
 from typing import Iterator, Optional
 
-from .format import Recording, RecordingError, RecordingTruncatedWarning, TickColumns, _suffix
+from .csv_io import iter_csv_inputs, read_csv_metadata
+from .files import check_suffix
+from .format import Recording, RecordingTruncatedWarning, TickColumns
+from .mcap_reader import BLOCK, McapSource
 
 __all__ = ["iter_chunks"]
 
@@ -27,19 +30,14 @@ def iter_chunks(path, ticks: int = 65536, *, robot_cables: Optional[int] = None)
     :class:`RecordingTruncatedWarning`, as :func:`read_recording` does."""
     if ticks < 1:
         raise ValueError(f"ticks must be >= 1, got {ticks}")
-    suffix = _suffix(path)
-    if suffix == ".mcap":
+    if check_suffix(path) == ".mcap":
         yield from _mcap_chunks(path, ticks, robot_cables)
-    elif suffix == ".csv":
-        yield from _csv_chunks(path, ticks, robot_cables)
     else:
-        raise RecordingError(path, "file name", f"unknown suffix {suffix!r}: expected .mcap or .csv")
+        yield from _csv_chunks(path, ticks, robot_cables)
 
 
 def _mcap_chunks(path, ticks: int, robot_cables: Optional[int]) -> Iterator[Recording]:
-    from .mcap_io import BLOCK, _McapSource
-
-    src = _McapSource(path, robot_cables)
+    src = McapSource(path, robot_cables)
     trunc = None
     try:
         cols = TickColumns(robot_cables)
@@ -63,8 +61,6 @@ def _mcap_chunks(path, ticks: int, robot_cables: Optional[int]) -> Iterator[Reco
 
 
 def _csv_chunks(path, ticks: int, robot_cables: Optional[int]) -> Iterator[Recording]:
-    from .csv_io import iter_csv_inputs, read_csv_metadata
-
     meta = read_csv_metadata(path)
     robot = meta.get("robot", "")
     other = {k: v for k, v in meta.items() if k not in ("robot", "format")}

@@ -26,16 +26,19 @@ import numpy as np
 
 from .format import (
     FORMAT_VERSION,
+    INT64_MAX,
+    INT64_MIN,
     PathArg,
     Recording,
     RecordingError,
     Tick,
+    check_seq,
+    open_recording,
 )
 
 POSE_COLUMNS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 _CABLE_COLUMN = re.compile(r"^([lf])(0|[1-9][0-9]*)$")
 _NAN = math.nan
-_INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
 _BOM = b"\xef\xbb\xbf"
 # a number as format 1 writes it (Python repr of a float, or an integer): what int() and
 # float() read, less the digit separators and non-ASCII digits they also accept
@@ -167,11 +170,7 @@ class CsvRecordingWriter:
         """One line; arguments as :meth:`McapRecordingWriter.write_input`."""
         if self._closed:
             raise ValueError(f"{self.path}: writer is closed")
-        if isinstance(seq, (bool, np.bool_)) or not isinstance(seq, (int, np.integer)):
-            raise TypeError(f"seq must be an integer, got {type(seq).__name__}")
-        seq = int(seq)
-        if not _INT64_MIN <= seq <= _INT64_MAX:
-            raise ValueError(f"seq = {seq} does not fit in a signed 64-bit integer")
+        seq = check_seq(seq)
         t = float(t)
         if not math.isfinite(t):
             raise ValueError(f"t must be finite, got {t!r}")
@@ -216,14 +215,9 @@ class _CsvSource:
 
     def __init__(self, path: PathArg, robot_cables: Optional[int] = None):
         self.path = str(path)
-        try:
-            # Binary, decoded line by line: a decode error names the physical line (a text
-            # wrapper decodes blocks ahead of the line being parsed).
-            self._f: BinaryIO = open(path, "rb")
-        except FileNotFoundError:
-            raise RecordingError(path, "file", "no such file") from None
-        except OSError as e:
-            raise RecordingError(path, "file", f"cannot open: {e.strerror or e}") from None
+        # Binary, decoded line by line: a decode error names the physical line (a text
+        # wrapper decodes blocks ahead of the line being parsed).
+        self._f: BinaryIO = open_recording(path)
         self._lines = self._physical_lines()
         try:
             self._read_head(robot_cables)
@@ -437,7 +431,7 @@ class _CsvSource:
             what = "empty (seq is required)" if not s.strip() else (
                 f"{s.strip()!r} is not an integer")
             raise self._err(lineno, "seq", what) from None
-        if not _INT64_MIN <= seq <= _INT64_MAX:
+        if not INT64_MIN <= seq <= INT64_MAX:
             raise self._err(lineno, "seq", f"{seq} does not fit in a signed 64-bit integer")
         vals = []
         for j, name in zip(self.float_cols, self.float_names):

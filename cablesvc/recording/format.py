@@ -1,9 +1,12 @@
-"""Recording format, version 1 (specified in ``docs/recording-format.md``).
+"""Recording formats 1 and 2 (specified in ``docs/recording-format.md``): what both file
+formats share.
 
 A recording holds what a cable robot's controller saw, one record per control tick. This
-module holds what both file formats share: the names and JSON schemas of the MCAP topics,
-the in-memory :class:`Recording` (columnar numpy arrays for a whole file), the error type
-and the suffix dispatch :func:`read_recording` / :func:`write_recording`.
+module holds the format versions, the in-memory :class:`Recording` (columnar numpy arrays
+for a whole file) and :class:`TickColumns` (its builder), the tick type and the error type.
+It imports no other module of the package: the MCAP topics and their JSON schemas are in
+``schemas.py``, the readers and writers in ``csv_io.py``, ``mcap_reader.py`` and
+``mcap_writer.py``, the suffix dispatch (:func:`read_recording`, ...) in ``files.py``.
 
 A *tick* (what the streaming readers yield and what ``McapRecordingWriter.write_input``
 takes) is a dict with the keys ``seq`` (int), ``t`` (float, s), ``position`` ((3,) array or
@@ -23,10 +26,11 @@ import builtins
 import math
 from dataclasses import dataclass, field
 from os import PathLike
-from pathlib import Path
-from typing import Any, Iterable, Iterator, Optional, TypedDict, Union
+from typing import Any, BinaryIO, Iterable, Iterator, Optional, TypedDict, Union
 
 import numpy as np
+
+from cablesvc.errors import RecordingError as _RecordingErrorArea
 
 PathArg = Union[str, "PathLike[str]"]
 
@@ -41,100 +45,6 @@ MCAP_FORMAT_VERSIONS = (FORMAT_VERSION, BLOCK_FORMAT_VERSION)
 #: format 2, the default) and ``json`` (one JSON message per tick, format 1).
 ENCODINGS = ("protobuf", "json")
 METADATA_NAME = "cablesvc"
-MESSAGE_ENCODING = "json"
-SCHEMA_ENCODING = "jsonschema"
-
-INPUT_TOPIC = "/cablesvc/input"
-INPUT_SCHEMA_NAME = "cablesvc.Input"
-
-_NUMBER_OR_NULL = {"type": ["number", "null"]}
-
-
-def _vector(n: Optional[int], description: str) -> dict[str, Any]:
-    out: dict[str, Any] = {"type": "array", "items": _NUMBER_OR_NULL, "description": description}
-    if n is None:
-        out["minItems"] = 1
-    else:
-        out["minItems"] = n
-        out["maxItems"] = n
-    return out
-
-
-INPUT_JSON_SCHEMA: dict[str, Any] = {
-    "$schema": "https://json-schema.org/draft/2020-12/schema",
-    "title": INPUT_SCHEMA_NAME,
-    "description": (
-        "One control tick of a cable-driven parallel robot (cablesvc recording format 1). "
-        "SI units; cable i is the i-th cable of the robot file; non-finite numbers are null."
-    ),
-    "type": "object",
-    "properties": {
-        "seq": {"type": "integer", "description": "tick counter, +1 per tick"},
-        "t": {"type": "number", "description": "controller clock, s; log_time = t in ns"},
-        "pose": {
-            "description": "platform pose, or null when the controller has none",
-            "anyOf": [
-                {
-                    "type": "object",
-                    "properties": {
-                        "position": _vector(3, "x, y, z in m"),
-                        "orientation": _vector(4, "unit quaternion [qx, qy, qz, qw]"),
-                    },
-                    "required": ["position", "orientation"],
-                },
-                {"type": "null"},
-            ],
-        },
-        "motor_length": _vector(None, "unstretched length paid out per cable, m"),
-        "force": {
-            "description": "measured cable forces, N, one per cable; null without sensors",
-            "anyOf": [_vector(None, "N per cable"), {"type": "null"}],
-        },
-        "temperature": {"type": ["number", "null"], "description": "deg C, or null"},
-    },
-    "required": ["seq", "t", "pose", "motor_length", "force", "temperature"],
-}
-
-# Output topics cablesvc itself writes (docs/recording.md). Readers ignore topics they do
-# not know; these schemas are what the live service and ``--record`` put in the file.
-FORCES_TOPIC = "/cablesvc/forces"
-FORCES_SCHEMA_NAME = "cablesvc.Forces"
-FORCES_JSON_SCHEMA: dict[str, Any] = {
-    "$schema": "https://json-schema.org/draft/2020-12/schema",
-    "title": FORCES_SCHEMA_NAME,
-    "description": "cable forces predicted by cablesvc for one input tick",
-    "type": "object",
-    "properties": {
-        "seq": {"type": "integer", "description": "seq of the input tick predicted for"},
-        "t": {"type": "number", "description": "t of that input tick, s"},
-        "force": _vector(None, "predicted force per cable, N"),
-    },
-    "required": ["seq", "t", "force"],
-}
-
-ALARMS_TOPIC = "/cablesvc/alarms"
-ALARM_SCHEMA_NAME = "cablesvc.Alarm"
-ALARM_JSON_SCHEMA: dict[str, Any] = {
-    "$schema": "https://json-schema.org/draft/2020-12/schema",
-    "title": ALARM_SCHEMA_NAME,
-    "description": "an alarm raised by cablesvc",
-    "type": "object",
-    "properties": {
-        "seq": {"type": ["integer", "null"], "description": "input tick that raised it"},
-        "t": {"type": "number", "description": "controller clock, s"},
-        "severity": {"enum": ["info", "warning", "error"]},
-        "code": {"type": "string", "description": "stable machine-readable alarm code"},
-        "cable": {"type": ["integer", "null"], "description": "0-based cable, or null"},
-        "message": {"type": "string", "description": "human-readable text"},
-    },
-    "required": ["t", "severity", "code", "message"],
-}
-
-#: topic -> (schema name, JSON schema) for the output topics cablesvc documents.
-OUTPUT_TOPICS: dict[str, tuple[str, dict[str, Any]]] = {
-    FORCES_TOPIC: (FORCES_SCHEMA_NAME, FORCES_JSON_SCHEMA),
-    ALARMS_TOPIC: (ALARM_SCHEMA_NAME, ALARM_JSON_SCHEMA),
-}
 
 
 class Tick(TypedDict):
@@ -149,13 +59,17 @@ class Tick(TypedDict):
     temperature: Optional[float]
 
 
-class RecordingError(Exception):
-    """A recording file cannot be read (or written) as format 1.
+class RecordingError(_RecordingErrorArea):
+    """A recording file cannot be read (or written) as format 1 or 2.
 
     ``path`` is the file, ``location`` where in it (``"message 17 on /cablesvc/input"``,
     ``"line 42, column f3"``, ``"metadata"``, ``"file"``), ``reason`` what is wrong.
     Message indexes are 0-based in file order among the messages of that topic (= the row of
     the tick in the :class:`Recording`); CSV line numbers are 1-based physical lines.
+
+    It is the area class :class:`cablesvc.errors.RecordingError` with these three fields
+    (the area class takes one message only), so ``except cablesvc.errors.RecordingError``
+    catches every recording error.
     """
 
     def __init__(self, path: PathArg, location: Optional[str], reason: str):
@@ -166,6 +80,33 @@ class RecordingError(Exception):
 
     def __str__(self) -> str:
         return f"{self.path}: {self.location}: {self.reason}"
+
+
+#: the range of ``seq`` (a signed 64-bit integer in every format and encoding)
+INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
+
+
+def check_seq(seq: Any) -> int:
+    """A writer's ``seq`` as a Python int; not an integer (a bool is not) is a TypeError,
+    one beyond 64 bits a ValueError."""
+    if type(seq) is not int:
+        if isinstance(seq, (bool, np.bool_)) or not isinstance(seq, (int, np.integer)):
+            raise TypeError(f"seq must be an integer, got {type(seq).__name__}")
+        seq = int(seq)
+    if not INT64_MIN <= seq <= INT64_MAX:
+        raise ValueError(f"seq = {seq} does not fit in a signed 64-bit integer")
+    return seq
+
+
+def open_recording(path: PathArg) -> BinaryIO:
+    """The file at ``path`` opened for binary reading; a missing or unreadable file is a
+    :class:`RecordingError` naming it."""
+    try:
+        return open(path, "rb")
+    except FileNotFoundError:
+        raise RecordingError(path, "file", "no such file") from None
+    except OSError as e:
+        raise RecordingError(path, "file", f"cannot open: {e.strerror or e}") from None
 
 
 class RecordingTruncatedWarning(UserWarning):
@@ -675,77 +616,3 @@ class TickColumns:
             temperature=temperature,
             **kw,
         )
-
-
-def _suffix(path: PathArg) -> str:
-    return Path(path).suffix.lower()
-
-
-def read_recording(
-    path: PathArg, *, robot_cables: Optional[int] = None, keep_topics: Iterable[str] = ()
-) -> Recording:
-    """Read a ``.mcap`` or ``.csv`` recording (dispatch on the suffix).
-
-    ``robot_cables``: the robot's cable count; when given, every tick must have that many
-    motor lengths (and forces). ``keep_topics``: MCAP topics besides the input to decode
-    into ``Recording.extra`` (ignored for CSV, which has none).
-    """
-    suffix = _suffix(path)
-    if suffix == ".mcap":
-        from .mcap_io import read_mcap
-
-        return read_mcap(path, robot_cables=robot_cables, keep_topics=keep_topics)
-    if suffix == ".csv":
-        from .csv_io import read_csv
-
-        return read_csv(path, robot_cables=robot_cables)
-    raise RecordingError(path, "file name", f"unknown suffix {suffix!r}: expected .mcap or .csv")
-
-
-def write_recording(path: PathArg, rec: Recording, *, encoding: Optional[str] = None) -> None:
-    """Write ``rec`` as ``.mcap`` or ``.csv`` (dispatch on the suffix).
-
-    ``encoding`` (MCAP only): ``"protobuf"`` (binary blocks, format 2; the default) or
-    ``"json"`` (one JSON message per tick, format 1). A CSV file ignores it."""
-    suffix = _suffix(path)
-    if encoding is not None and encoding not in ENCODINGS:
-        raise ValueError(f"encoding must be one of {list(ENCODINGS)}, got {encoding!r}")
-    if suffix == ".mcap":
-        from .mcap_io import DEFAULT_ENCODING, write_mcap
-
-        write_mcap(path, rec, encoding=encoding or DEFAULT_ENCODING)
-        return
-    if suffix == ".csv":
-        from .csv_io import write_csv
-
-        write_csv(path, rec)
-        return
-    raise ValueError(f"{path}: unknown suffix {suffix!r}: expected .mcap or .csv")
-
-
-def iter_inputs(path: PathArg, *, robot_cables: Optional[int] = None) -> Iterator[Tick]:
-    """Stream the ticks of a ``.mcap`` or ``.csv`` recording in file order."""
-    suffix = _suffix(path)
-    if suffix == ".mcap":
-        from .mcap_io import iter_mcap_inputs
-
-        return iter_mcap_inputs(path, robot_cables=robot_cables)
-    if suffix == ".csv":
-        from .csv_io import iter_csv_inputs
-
-        return iter_csv_inputs(path, robot_cables=robot_cables)
-    raise RecordingError(path, "file name", f"unknown suffix {suffix!r}: expected .mcap or .csv")
-
-
-def read_metadata(path: PathArg) -> dict[str, str]:
-    """The file's metadata including ``robot`` and ``format`` (cheap; reads no ticks)."""
-    suffix = _suffix(path)
-    if suffix == ".mcap":
-        from .mcap_io import read_mcap_metadata
-
-        return read_mcap_metadata(path)
-    if suffix == ".csv":
-        from .csv_io import read_csv_metadata
-
-        return read_csv_metadata(path)
-    raise RecordingError(path, "file name", f"unknown suffix {suffix!r}: expected .mcap or .csv")

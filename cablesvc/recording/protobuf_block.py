@@ -33,6 +33,8 @@ from typing import Optional
 
 import numpy as np
 
+from cablesvc.errors import RecordingError
+
 SCHEMA_NAME = "cablesvc.InputBlock"
 SCHEMA_ENCODING = "protobuf"
 MESSAGE_ENCODING = "protobuf"
@@ -143,8 +145,9 @@ def encode_block(seq: np.ndarray, t: np.ndarray, motor_length: np.ndarray,
 
 
 # ===================================================================== decode
-class BlockError(ValueError):
-    """An ``InputBlock`` message that is not valid protobuf or breaks the schema's rules."""
+class BlockError(RecordingError, ValueError):
+    """An ``InputBlock`` message that is not valid protobuf or breaks the schema's rules
+    (the MCAP reader turns it into a ``RecordingError`` naming the file and message)."""
 
     def __init__(self, field: str, reason: str):
         super().__init__(field, reason)

@@ -5,10 +5,10 @@ examples in ``docs/messages.md``):
 
 - **forces** (:data:`FORCES_SCHEMA`), one per processed tick: predicted force, elongation,
   wrap angle and slack flag per cable, measured force and residual when the bus has
-  them, the wrench residual, the pose used. A superset of the MCAP ``/cablesvc/forces``
-  schema of :mod:`cablesvc.recording.format` (seq, t, force).
-- **alarm** (:data:`ALARM_SCHEMA`), one per raise or clear: ``AlarmEvent.payload()``. A
-  superset of the MCAP ``/cablesvc/alarms`` schema (t, severity, code, message, seq, cable).
+  them, the wrench residual, the pose used. Built on the MCAP ``/cablesvc/forces``
+  schema of :mod:`cablesvc.recording.schemas` (seq, t, force), so a superset of it.
+- **alarm** (:data:`ALARM_SCHEMA`), one per raise or clear: ``AlarmEvent.payload()``. Built
+  on the MCAP ``/cablesvc/alarms`` schema (t, severity, code, message, seq, cable).
 - **status** (:data:`STATUS_SCHEMA`), the answer to a query on the status key.
 
 Numbers are SI (N, m, rad, s, ns). Non-finite numbers never appear: an absent value is
@@ -35,6 +35,7 @@ import numpy as np
 import orjson
 
 from cablesvc.alarms import ACTIONS, ALARM_CODES, SEVERITIES
+from cablesvc.recording.schemas import ALARM_JSON_SCHEMA, FORCES_JSON_SCHEMA, JSON_SCHEMA_DIALECT, json_schema
 
 __all__ = [
     "ALARM_SCHEMA",
@@ -56,7 +57,6 @@ COMPACT_ENCODING = "application/x-cablesvc-forces-v1"
 #: short name -> encoding string
 ENCODINGS = {"json": JSON_ENCODING, "compact": COMPACT_ENCODING}
 
-_SCHEMA = "https://json-schema.org/draft/2020-12/schema"
 _NUM = {"type": ["number", "null"]}
 
 
@@ -69,20 +69,22 @@ def _vec(description: str, n: int | None = None, nullable: bool = False) -> dict
     return v
 
 
-FORCES_SCHEMA: dict[str, Any] = {
-    "$schema": _SCHEMA,
-    "title": "cablesvc.Forces",
-    "description": ("Cable forces predicted by cablesvc for one input tick (published on cablesvc/<robot>/forces). "
-                    "SI units; arrays have one value per cable in robot-file order; non-finite numbers are null."),
-    "type": "object",
-    "properties": {
+def _extend(recorded: dict[str, Any], description: str, live: dict[str, Any], required: list[str]) -> dict[str, Any]:
+    """The published schema of a message: its recorded schema (``cablesvc.recording.schemas``:
+    the fields a recording keeps, as they are there) with the fields only the live daemon
+    sends added, or constrained more tightly where ``live`` names a recorded field again."""
+    return json_schema(recorded["title"], description, {**recorded["properties"], **live}, required)
+
+
+FORCES_SCHEMA: dict[str, Any] = _extend(
+    FORCES_JSON_SCHEMA,
+    "Cable forces predicted by cablesvc for one input tick (published on cablesvc/<robot>/forces). "
+    "SI units; arrays have one value per cable in robot-file order; non-finite numbers are null.",
+    {
         "robot": {"type": "string", "description": "robot name (robot file)"},
-        "seq": {"type": "integer", "description": "seq of the input tick predicted for"},
-        "t": {"type": "number", "description": "controller time of that tick, s"},
         "stamp_ns": {"type": "integer",
                      "description": "daemon host CLOCK_MONOTONIC when the input tick was received, ns"},
         "cables": {"type": "array", "items": {"type": "string"}, "description": "cable names"},
-        "force": _vec("predicted tension per cable, N (never negative)"),
         "elongation": _vec("elongation x = l(pose) - motor_length per cable, m"),
         "wrap_angle": _vec("pulley wrap angle per cable, rad"),
         "slack": {"type": "array", "items": {"type": "boolean"},
@@ -101,26 +103,20 @@ FORCES_SCHEMA: dict[str, Any] = {
                          "description": "true when the pose came from the elasto-static forward kinematics"},
         "fk_residual": {"type": ["number", "null"], "description": "|A^T f + w| after the FK, N; 0 with a measured pose"},
     },
-    "required": ["robot", "seq", "t", "stamp_ns", "force", "elongation", "wrap_angle", "slack", "measured",
-                 "residual", "wrench_residual", "pose_from_fk"],
-}
+    ["robot", "seq", "t", "stamp_ns", "force", "elongation", "wrap_angle", "slack", "measured",
+     "residual", "wrench_residual", "pose_from_fk"],
+)
 
-ALARM_SCHEMA: dict[str, Any] = {
-    "$schema": _SCHEMA,
-    "title": "cablesvc.Alarm",
-    "description": ("An alarm raised or cleared by cablesvc (published on cablesvc/<robot>/alarms). A superset of "
-                    "the MCAP /cablesvc/alarms schema."),
-    "type": "object",
-    "properties": {
+ALARM_SCHEMA: dict[str, Any] = _extend(
+    ALARM_JSON_SCHEMA,
+    "An alarm raised or cleared by cablesvc (published on cablesvc/<robot>/alarms). A superset of "
+    "the MCAP /cablesvc/alarms schema.",
+    {
         "action": {"enum": list(ACTIONS), "description": "raise: the condition holds; clear: it is over"},
         "code": {"enum": list(ALARM_CODES), "description": "stable machine-readable alarm code"},
-        "cable": {"type": ["integer", "null"], "description": "0-based cable, or null for the robot"},
         "severity": {"enum": list(SEVERITIES)},
-        "t": {"type": "number", "description": "controller time of the event, s"},
         "since": {"type": ["number", "null"],
                   "description": "controller time the condition started, s (for a clear: of the alarm it clears)"},
-        "seq": {"type": ["integer", "null"], "description": "input tick of the event"},
-        "message": {"type": "string", "description": "plain words"},
         "offset_n": {"type": ["number", "null"], "description": "drift: estimated offset from the baseline, N"},
         "suggested_action": {"type": ["string", "null"], "description": "drift, spread: what to do"},
         "value": {"type": ["number", "null"],
@@ -128,11 +124,11 @@ ALARM_SCHEMA: dict[str, Any] = {
         "limit": {"type": ["number", "null"], "description": "the threshold it was compared with, same unit"},
         "robot": {"type": "string", "description": "robot name (optional)"},
     },
-    "required": ["action", "code", "cable", "severity", "t", "since", "seq", "message"],
-}
+    ["action", "code", "cable", "severity", "t", "since", "seq", "message"],
+)
 
 STATUS_SCHEMA: dict[str, Any] = {
-    "$schema": _SCHEMA,
+    "$schema": JSON_SCHEMA_DIALECT,
     "title": "cablesvc.Status",
     "description": ("Answer of the daemon to a query on cablesvc/<robot>/status. Only robot is guaranteed; the "
                     "daemon fills in the other documented fields, and may add more. Non-finite numbers are null."),
