@@ -24,7 +24,7 @@ from cablesvc.config import load_robot
 from cablesvc.config.params import default_params
 from cablesvc.kernel import Predictor
 from cablesvc.kinematics import inverse_kinematics
-from cablesvc.service.daemon import read_snapshot, write_snapshot
+from cablesvc.service.snapshot import read_snapshot, write_snapshot
 from cablesvc.service.messages import ALARM_SCHEMA, check_schema
 
 NOISE = 0.1

@@ -28,7 +28,7 @@ from cablesvc.config.params import default_params
 from cablesvc.kernel import Predictor
 from cablesvc.kinematics import inverse_kinematics
 from cablesvc.recording import ALARM_JSON_SCHEMA
-from cablesvc.service.daemon import read_snapshot, write_snapshot
+from cablesvc.service.snapshot import read_snapshot, write_snapshot
 from cablesvc.service.messages import ALARM_SCHEMA, check_schema
 
 RATE = 1000.0

@@ -10,7 +10,7 @@ import pytest
 from cablesvc.config import load_robot
 from cablesvc.kernel import Predictor
 from cablesvc.config.params import nominal_params
-from cablesvc.service.daemon import read_snapshot, write_snapshot
+from cablesvc.service.snapshot import read_snapshot, write_snapshot
 
 
 def _run_some_ticks(pred: Predictor, n: int, t0: float = 0.0):

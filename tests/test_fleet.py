@@ -30,7 +30,8 @@ from cablesvc.config.daemon import FleetConfigError
 from cablesvc.config.params import nominal_params
 from cablesvc.config import load_robot
 from cablesvc.recording import read_recording, write_recording
-from cablesvc.service.daemon import DaemonOptions, read_snapshot
+from cablesvc.service.daemon import DaemonOptions
+from cablesvc.service.snapshot import read_snapshot
 from cablesvc.service.fleet import Fleet, FleetError, FleetStartError
 from cablesvc.service.zenoh_io import Listener, Publisher, keys, make_config
 from cablesvc.simulate import simulate_recording

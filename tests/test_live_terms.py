@@ -227,17 +227,17 @@ def test_reload_hand_over_between_files_with_other_terms(robot):
     """The daemon's reload hands the kernel state to the new kernel: from a file without
     terms to one with stateful terms (and back) the model memory is kept and the terms
     start fresh, without an error."""
-    from cablesvc.service.daemon import _hand_over
+    from cablesvc.service.params_reload import hand_over
     rec = _recording("deadtime:0.25@5")
     d = _discovery(rec, robot, ["deadtime", "boucwen", "creep"])
     plain, with_terms = d.baseline, d.augmented_params()
     _, p_old = _kernel_forces(rec, robot, plain, 0, 300)
     p_new = Predictor(robot.geometry(), with_terms)
-    assert _hand_over(p_old, p_new) == "kept (same model family)"
+    assert hand_over(p_old, p_new) == "kept (same model family)"
     more, _ = _kernel_forces(rec, robot, with_terms, 300, 400, pred=p_new)
     assert np.all(np.isfinite(more))
     p_back = Predictor(robot.geometry(), plain)
-    assert _hand_over(p_new, p_back) == "kept (same model family)"
+    assert hand_over(p_new, p_back) == "kept (same model family)"
 
 
 def test_reload_into_terms_takes_the_rates_of_the_last_tick(robot):
@@ -245,14 +245,14 @@ def test_reload_into_terms_takes_the_rates_of_the_last_tick(robot):
     the hand-over uses the real sliding speed over the pulley (the previous tick's motor
     length comes with the state), so it equals a kernel that ran the terms from the start
     (the pulley term has no other memory). Without it the friction is 0 for one tick."""
-    from cablesvc.service.daemon import _hand_over
+    from cablesvc.service.params_reload import hand_over
     rec = _recording("pulley:0.004@1,4")
     d = _discovery(rec, robot, ["pulley"])
     plain, with_terms = d.baseline, d.augmented_params()
     assert max(abs(v) for v in with_terms.identification["term_pulley"]["mu"]) > 0
     _, p_old = _kernel_forces(rec, robot, plain, 0, 300)
     p_new = Predictor(robot.geometry(), with_terms)
-    _hand_over(p_old, p_new)
+    hand_over(p_old, p_new)
     after, _ = _kernel_forces(rec, robot, with_terms, 300, 310, pred=p_new)
     ref, _ = _kernel_forces(rec, robot, with_terms, 0, 310)
     np.testing.assert_allclose(after, ref[300:], rtol=1e-12, atol=1e-9)

@@ -30,7 +30,8 @@ from cablesvc.config.params import default_params, load_params
 from cablesvc.kernel import Predictor
 from cablesvc.kinematics import inverse_kinematics
 from cablesvc.recording import ALARMS_TOPIC, FORCES_TOPIC, write_recording
-from cablesvc.service.daemon import Daemon, DaemonOptions, params_fingerprint, read_snapshot
+from cablesvc.service.daemon import Daemon, DaemonOptions
+from cablesvc.service.snapshot import params_fingerprint, read_snapshot
 from cablesvc.service.zenoh_io import Listener, Publisher, keys, make_config
 from cablesvc.simulate import simulate_recording
 from cablesvc.sources.controller import free_tcp_port

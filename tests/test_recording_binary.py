@@ -40,7 +40,7 @@ from cablesvc.recording import (
     write_recording,
 )
 from cablesvc.recording import protobuf_block as pb
-from cablesvc.service.daemon import Recorder
+from cablesvc.service.recorder import Recorder
 from cablesvc.sources.base import TickInput
 
 REPO = Path(__file__).resolve().parents[1]

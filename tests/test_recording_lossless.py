@@ -19,7 +19,8 @@ import pytest
 from cablesvc.config.params import nominal_params
 from cablesvc.config import load_robot
 from cablesvc.recording import read_recording, write_recording
-from cablesvc.service.daemon import Daemon, DaemonOptions, Recorder
+from cablesvc.service.daemon import Daemon, DaemonOptions
+from cablesvc.service.recorder import Recorder
 from cablesvc.simulate import simulate_recording
 from cablesvc.sources.base import TickInput
 from cablesvc.sources.controller import free_tcp_port

@@ -23,7 +23,8 @@ from mcap.reader import make_reader
 from cablesvc.config.params import nominal_params
 from cablesvc.config import load_robot
 from cablesvc.recording import ALARMS_TOPIC, FORCES_TOPIC, write_recording
-from cablesvc.service.daemon import Daemon, DaemonOptions, read_snapshot
+from cablesvc.service.daemon import Daemon, DaemonOptions
+from cablesvc.service.snapshot import read_snapshot
 from cablesvc.simulate import simulate_recording
 from cablesvc.sources.controller import free_tcp_port
 

@@ -196,7 +196,8 @@ def _cmd_run(args) -> int:
 
     from cablesvc.config import load_robot
     from cablesvc.config.params import load_params, nominal_params
-    from cablesvc.service.daemon import Daemon, DaemonOptions, default_snapshot_path
+    from cablesvc.service.daemon import Daemon, DaemonOptions
+    from cablesvc.service.snapshot import default_snapshot_path
 
     logging.basicConfig(level=getattr(logging, str(args.log_level).upper(), logging.INFO),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)

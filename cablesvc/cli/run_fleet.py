@@ -78,7 +78,8 @@ def plan_fleet(args, cfg: dict[str, Any], file: str) -> tuple[dict[str, Any], li
     """
     from cablesvc.config import load_robot
     from cablesvc.config.params import load_params, nominal_params
-    from cablesvc.service.daemon import DaemonOptions, default_snapshot_path
+    from cablesvc.service.daemon import DaemonOptions
+    from cablesvc.service.snapshot import default_snapshot_path
     from cablesvc.service.fleet import duplicate_names
     from cablesvc.sources import SourceConfigError, open_source
 

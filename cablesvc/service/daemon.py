@@ -32,16 +32,19 @@ z, ...) carries over when the model family is the same; a new family starts at r
 the current elongation, pose and time kept. A file that does not parse, fails a check or
 does not fit the robot (cable count, robot name) is refused with the reason: logged,
 counted, in the status, raised as a ``params_refused`` alarm; the old parameters stay.
+
+This module holds the options, the start checks and the loop; beside it,
+:mod:`~cablesvc.service.snapshot` (snapshot files and restoring them),
+:mod:`~cablesvc.service.recorder` (the recording writer thread) and
+:mod:`~cablesvc.service.params_reload` (new parameters without a restart).
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import math
 import os
-import queue
 import sys
 import threading
 import time
@@ -54,15 +57,15 @@ import numpy as np
 
 from cablesvc import __version__
 from cablesvc.config.params import ModelParams
-from cablesvc.jsonable import jsonable
 from cablesvc.config.robot import Robot
+from cablesvc.errors import ServiceError
 from cablesvc.kernel import Predictor
 from cablesvc.service.messages import forces_payload
+from cablesvc.service.params_reload import ParamsReload
+from cablesvc.service.recorder import RECORD_SUFFIXES, REPLAY_RECORD_QUEUE, Recorder
+from cablesvc.service.snapshot import SnapshotState, params_fingerprint, source_identity
 
 log = logging.getLogger("cablesvc.daemon")
-
-SNAPSHOT_FORMAT = 2            # 2: the meta names the source and holds the last elongation
-MAX_PARAMS_BYTES = 1_000_000   # a parameter file put over Zenoh (identified files are a few kB)
 
 
 # ---- options ---------------------------------------------------------------------------
@@ -93,104 +96,9 @@ class DaemonOptions:
     params_file: str | None = None               # what SIGHUP re-reads (None: params.source when it is a file)
 
 
-def default_snapshot_path(robot: str) -> Path:
-    """``$CABLESVC_STATE_DIR`` or ``$XDG_STATE_HOME/cablesvc`` or ``~/.local/state/cablesvc``."""
-    base = os.environ.get("CABLESVC_STATE_DIR")
-    if not base:
-        base = os.path.join(os.environ.get("XDG_STATE_HOME", os.path.expanduser("~/.local/state")), "cablesvc")
-    return Path(base) / f"{robot}.state.npz"
-
-
-def params_fingerprint(params: ModelParams) -> str:
-    """Short hash of the parameter file's content: a snapshot only restores onto the same model."""
-    return hashlib.sha256(params.to_toml().encode()).hexdigest()[:16]
-
-
-def source_identity(source: dict[str, Any]) -> str:
-    """The input a hysteresis state belongs to, as written into its snapshot: a CAN bus by
-    interface and channel, a Modbus server by host, port and unit, a replay by the
-    recording's absolute path. A snapshot is restored only onto the same identity: a replay
-    (or a simulator) never takes over, nor overwrites, the live robot's state."""
-    kind = source.get("kind")
-    if kind == "can":
-        return f"can:{source.get('interface')}:{source.get('channel')}"
-    if kind == "modbus":
-        return f"modbus:{source.get('host')}:{source.get('port')}:{source.get('unit')}"
-    if kind == "replay" and source.get("path"):
-        return f"replay:{os.path.realpath(source['path'])}"
-    return f"{kind}:{json.dumps(source, sort_keys=True, default=str)}"
-
-
-# ---- snapshots -------------------------------------------------------------------------
-
-def _flatten_state(prefix: str, d: Any, out: dict[str, np.ndarray]) -> None:
-    if isinstance(d, dict):
-        for k, v in d.items():
-            _flatten_state(f"{prefix}{k}/", v, out)
-    else:
-        out[prefix[:-1]] = np.asarray(d)
-
-
-def _unflatten_state(prefix: str, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
-    root: dict[str, Any] = {}
-    for key, v in arrays.items():
-        if not key.startswith(prefix):
-            continue
-        parts = key[len(prefix):].split("/")
-        node = root
-        for p in parts[:-1]:
-            node = node.setdefault(p, {})
-        node[parts[-1]] = v[()] if v.ndim == 0 else v
-    return root
-
-
-def write_snapshot(path: Path, meta: dict[str, Any], predictor_state: dict[str, np.ndarray],
-                   alarm_state: dict[str, Any]) -> None:
-    """Atomic snapshot: write a temporary file next to ``path``, fsync it, rename over ``path``.
-
-    A crash at any moment leaves either the previous snapshot or the new one, never a torn file.
-    """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    arrays: dict[str, np.ndarray] = {"meta": np.array(json.dumps(meta))}
-    _flatten_state("kernel/", predictor_state, arrays)
-    _flatten_state("alarms/", alarm_state, arrays)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        np.savez(f, **arrays)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    try:                                  # make the rename itself durable
-        dfd = os.open(path.parent, os.O_RDONLY)
-        try:
-            os.fsync(dfd)
-        finally:
-            os.close(dfd)
-    except OSError:
-        pass
-
-
-def read_snapshot(path: Path) -> tuple[dict[str, Any], dict[str, np.ndarray], dict[str, Any]]:
-    """(meta, predictor state, alarm state) of a snapshot file; raises ValueError when unreadable."""
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-        meta = json.loads(str(arrays["meta"][()]))
-    except Exception as e:                 # noqa: BLE001 - any damage means "not restorable"
-        raise ValueError(f"{path}: not a readable cablesvc snapshot ({e})") from e
-    kernel = {k[len("kernel/"):]: v for k, v in arrays.items() if k.startswith("kernel/")}
-    return meta, kernel, _unflatten_state("alarms/", arrays)
-
-
-# ---- recorder --------------------------------------------------------------------------
-
-class StartError(RuntimeError):
+class StartError(ServiceError, RuntimeError):
     """The daemon cannot start as configured (a --record target it must not write, a
     --replay file it cannot read); the message is one line naming the file."""
-
-
-REPLAY_RECORD_QUEUE = 2048          # ticks a replay's recorder may lag behind (the loop then waits)
-RECORD_SUFFIXES = {".mcap": "MCAP (inputs, forces and alarms)", ".csv": "CSV (inputs only)"}
 
 
 def check_record_target(record: Path, source: dict[str, Any], overwrite: bool) -> None:
@@ -221,181 +129,6 @@ def check_record_target(record: Path, source: dict[str, Any], overwrite: bool) -
     if not parent.is_dir():
         raise StartError(f"--record {record}: directory {parent} does not exist")
 
-
-class Recorder:
-    """Recording writer thread: the loop hands it (input, forces payload, alarm payloads)
-    tuples, and (None, t, alarm payloads) for alarms raised or cleared outside a tick (input
-    stale, lost or faulty). ``.mcap`` records all three; ``.csv`` the inputs only.
-
-    The queue is bounded. With ``block=False`` (live sources) a full queue drops the tick
-    and counts it (``dropped``): the loop never waits for the disk. With ``block=True``
-    (replays, which have no real-time deadline) the loop waits for room instead, so that no
-    tick is dropped whatever the replay speed.
-
-    :meth:`close` waits for the thread to write everything queued: as long as it makes
-    progress, whatever the length of the queue; only a writer that stalls (no item written
-    for ``stall_s``) is given up on. ``missing`` = ticks handed over - ticks written
-    (dropped, lost to a write error, or still queued when the writer stalled).
-
-    The writer is flushed every ``flush_s`` (1 s) while ticks come, and when the queue has
-    been idle that long: a kill -9 of the daemon loses at most about ``flush_s`` of ticks,
-    at any rate (the binary encoding holds up to 1000 ticks in memory otherwise).
-    """
-
-    def __init__(self, path: Path, robot: str, metadata: dict[str, str], maxsize: int, *,
-                 block: bool = False, overwrite: bool = True, stall_s: float = 10.0,
-                 encoding: str = "protobuf", flush_s: float = 1.0):
-        from cablesvc.recording import ALARMS_TOPIC, FORCES_TOPIC, McapRecordingWriter
-        from cablesvc.recording.csv_io import CsvRecordingWriter
-
-        self._forces_topic = FORCES_TOPIC
-        self._alarms_topic = ALARMS_TOPIC
-        path = Path(path)
-        if path.suffix.lower() == ".csv":
-            md = dict(metadata)
-            if "params" in md:                      # CSV metadata are one line each
-                md["params_json"] = json.dumps(md.pop("params"))
-            self.writer = CsvRecordingWriter(path, robot, metadata=md, overwrite=overwrite)
-        else:
-            self.writer = McapRecordingWriter(path, robot, metadata=metadata, overwrite=overwrite,
-                                              encoding=encoding)
-        self._topics = getattr(self.writer, "has_topics", True)
-        self.q: queue.Queue = queue.Queue(maxsize=maxsize)
-        self.block = block
-        self.stall_s = stall_s
-        self.flush_s = flush_s          # flush the writer this often while ticks come (kill -9 loses <= this)
-        self._dirty = False
-        self._flushed_at = time.monotonic()
-        self.handed = 0                 # ticks the loop handed over (queued or dropped)
-        self.dropped = 0                # ticks dropped from a full queue (block=False) or after close
-        self.written = 0
-        self.error: str | None = None
-        self._done = 0                  # items taken off the queue (progress, for close)
-        self._closing = False
-        self._abandoned = False
-        self._thread = threading.Thread(target=self._run, name="cablesvc-recorder", daemon=True)
-        self._thread.start()
-
-    @property
-    def missing(self) -> int:
-        """Ticks handed over that are not in the file (yet)."""
-        return self.handed - self.written
-
-    def put(self, item) -> None:
-        if item[0] is not None:
-            self.handed += 1
-        if self._closing:
-            if item[0] is not None:
-                self.dropped += 1
-            return
-        try:
-            self.q.put_nowait(item)
-            return
-        except queue.Full:
-            pass
-        last, last_at = self._done, time.monotonic()
-        while self.block and self._thread.is_alive() and not self._closing:
-            try:
-                self.q.put(item, timeout=0.1)
-                return
-            except queue.Full:
-                pass
-            if self._done != last:
-                last, last_at = self._done, time.monotonic()
-            elif time.monotonic() - last_at > self.stall_s:
-                # a hung disk must not hang the loop (nor the shutdown, which needs the loop's lock)
-                self.block = False
-                log.error("the recording writer wrote nothing for %g s: ticks are dropped from now on "
-                          "(counted as missing)", self.stall_s)
-        if item[0] is not None:
-            self.dropped += 1
-
-    def _flush(self) -> None:
-        """Hand what was written to the OS (the binary writer's block in progress and the
-        chunk in progress): a kill -9 then loses at most ``flush_s`` of ticks, whatever the
-        tick rate and the size of a chunk."""
-        self._dirty = False
-        self._flushed_at = time.monotonic()
-        if self.error:
-            return
-        try:
-            self.writer.flush()
-        except Exception as e:  # noqa: BLE001 - a full disk must not stop the daemon
-            self.error = f"recording stopped: {e}"
-            log.error(self.error)
-
-    def _run(self) -> None:
-        while True:
-            try:
-                item = self.q.get(timeout=self.flush_s)
-            except queue.Empty:                    # idle: flush what the last ticks left
-                if self._dirty:
-                    self._flush()
-                continue
-            if self._dirty and time.monotonic() - self._flushed_at >= self.flush_s:
-                self._flush()
-            self._done += 1
-            self._dirty = True
-            if item is None:
-                if self._abandoned:               # close() gave up on us: close the file ourselves
-                    try:
-                        self.writer.close()
-                    except Exception:  # noqa: BLE001
-                        pass
-                return
-            if self.error:
-                continue
-            tick, forces, alarms = item
-            try:
-                if tick is None:                   # alarms outside a tick: forces is their time
-                    if self._topics:
-                        for a in alarms:
-                            self.writer.write(self._alarms_topic, forces, a)
-                    continue
-                self.writer.write_input(tick.seq, tick.t, tick.motor_length, tick.force, tick.position,
-                                        tick.orientation, tick.temperature)
-                if self._topics:
-                    self.writer.write(self._forces_topic, tick.t, forces)
-                    for a in alarms:
-                        self.writer.write(self._alarms_topic, tick.t, a)
-                self.written += 1
-            except Exception as e:  # noqa: BLE001 - a full disk must not stop the daemon
-                self.error = f"recording stopped: {e}"
-                log.error(self.error)
-
-    def close(self) -> int:
-        """Write out the queue, close the file; return :attr:`missing` (0: every tick handed
-        over is in the file). Waits while the writer makes progress (bounded by the queue);
-        a writer stalled for ``stall_s`` is left behind and its file is not closed."""
-        self._closing = True
-        sentinel = False
-        last, last_at = -1, time.monotonic()
-        while self._thread.is_alive():
-            if not sentinel:
-                try:
-                    self.q.put(None, timeout=0.1)
-                    sentinel = True
-                except queue.Full:
-                    pass
-            else:
-                self._thread.join(0.1)
-            if self._done != last:
-                last, last_at = self._done, time.monotonic()
-            elif time.monotonic() - last_at > self.stall_s:
-                self.error = (f"the recording writer stalled: nothing written for {self.stall_s:g} s with "
-                              f"{self.q.qsize()} items still queued; gave up waiting")
-                log.error("%s", self.error)
-                self._abandoned = True
-                if not self._thread.is_alive():       # it finished just now: close it here after all
-                    self._abandoned = False
-                    break
-                return self.missing
-        try:
-            self.writer.close()
-        except Exception as e:  # noqa: BLE001
-            self.error = f"closing the recording failed: {e}"
-            log.error("%s", self.error)
-        return self.missing
 
 
 # ---- the daemon ------------------------------------------------------------------------
@@ -428,47 +161,7 @@ class _Held:
         self.lock.release()
 
 
-@dataclass
-class _ParamsChange:
-    """New parameters prepared by the reload thread, waiting for the loop to switch."""
-
-    params: ModelParams
-    predictor: Predictor
-    fingerprint: str
-    origin: str
-    done: threading.Event = field(default_factory=threading.Event)
-    result: dict[str, Any] | None = None
-
-
-def _hand_over(old: Predictor, new: Predictor) -> str:
-    """Carry the kernel state of ``old`` into ``new`` (same robot); returns what happened.
-
-    Same model family (model name): the whole state (the model's memory: reversal points,
-    amplitude estimate, Bouc-Wen z, ...; the pose the FK warm-starts from; the last tick's
-    time) carries over, so that reloading the same parameters changes nothing. Another
-    family: its memory means nothing to the new model, which starts at rest at the last
-    tick's elongation (as at a start, but with the pose and time kept: the next tick's dt
-    is the real one)."""
-    d = old.state_dict()
-    if not d:
-        return "none yet (no tick processed): the new model starts at the first tick"
-    why = ""
-    if type(old.model) is type(new.model):        # the same model class: its memory fits
-        try:
-            new.load_state_dict(d)
-            return "kept (same model family)"
-        except (KeyError, ValueError) as e:
-            why = f" (the {new.params.model} state did not fit: {e})"
-    x = np.array(old.out.elongation, dtype=float).reshape(1, -1)
-    fresh = new.model.create_state(x)
-    d2 = {f"model.{k}": v for k, v in fresh.as_dict().items()}
-    d2.update({k: v for k, v in d.items() if not k.startswith("model.")})
-    new.load_state_dict(d2)
-    return (f"reset: the model family changed from {old.params.model} to {new.params.model}{why}; the new model "
-            "starts at rest at the current elongation (pose and time kept)")
-
-
-class Daemon:
+class Daemon(ParamsReload, SnapshotState):
     """Source, kernel, alarms, publisher: see the module docstring.
 
     ``publisher_factory(robot_name, status_fn) -> Publisher`` exists so that a test can
@@ -516,21 +209,7 @@ class Daemon:
         self._step_max = np.zeros(m)
         self._dx = np.empty(m)
         self._dt_last: float | None = None           # the last tick's time step [s]
-        # parameter reload (see the module docstring): a change prepared by the reload
-        # thread waits in _pending_params until the loop takes it between two ticks
-        pf = options.params_file
-        if pf is None and options.params.source and os.path.isfile(options.params.source):
-            pf = options.params.source
-        self.params_file: str | None = os.path.abspath(pf) if pf else None
-        self.params_origin = f"file {self.params_file}" if self.params_file else "nominal (no parameter file)"
-        self.params_since: dict[str, Any] = {"wall_time": time.time(), "seq": None, "t": None, "origin": "start"}
-        self.reload_counts = {"accepted": 0, "refused": 0}
-        self.last_reload: dict[str, Any] | None = None
-        self._pending_params: _ParamsChange | None = None
-        self._params_alarm = None                  # the raised params_refused alarm, if any
-        self._last_tick = None                     # the last input tick (warms up a new kernel)
-        self._reload_q: queue.SimpleQueue = queue.SimpleQueue()     # put() is safe in a signal handler
-        self._reload_thread: threading.Thread | None = None
+        self._init_reload(options)
         if options.record is not None:           # before anything is opened or restored
             check_record_target(Path(options.record), options.source, options.record_overwrite)
         self._restore()
@@ -596,324 +275,6 @@ class Daemon:
             self.problems.append(p)
         why = next((p.message for p in problems if p.kind == "rejected"), None)
         raise StartError(f"cannot replay: {why or f'{src.label}: no tick to play'}")
-
-    # -- state restore / snapshot ---------------------------------------------------------
-    def _snapshot_meta(self) -> dict[str, Any]:
-        """``source``: whose state it is; ``elongation`` the last tick's [m] and
-        ``step_max`` the largest move of one tick seen [m], per cable: what the first tick of
-        the next start is checked against (:meth:`_resume`)."""
-        return {"format": SNAPSHOT_FORMAT, "robot": self.name, "model": self.params.model,
-                "params": self.fingerprint, "source": self.source_id, "seq": self.stats.last_seq,
-                "t": self.stats.last_t, "elongation": [None if v != v else float(v) for v in self._x_last],
-                "step_max": [float(v) for v in self._step_max], "dt_last": self._dt_last,
-                "wall_time": time.time(), "cablesvc_version": __version__}
-
-    def _restore_tolerance(self) -> np.ndarray:
-        """Per cable, the smallest elongation jump [m] the first tick may always show against
-        the snapshot: the model's reversal dead band (the motion the model itself treats as
-        noise). :meth:`_resume` allows more: the largest one-tick move seen before it."""
-        from cablesvc.models.reversal import REVERSAL_DEADBAND
-
-        db = np.broadcast_to(np.asarray(self.params.params.get("reversal_deadband", REVERSAL_DEADBAND), float),
-                             (self.geom.n_cables,))
-        return db
-
-    def _resume(self, tick) -> None:
-        """First tick after a restorable snapshot was read: use it only if it is consistent
-        with this tick's input, else start from rest (logged, ``snapshot.error`` says why).
-
-        The tick is run once from rest to get its elongation. The snapshot is consistent when
-        every cable's elongation moved by at most what one tick could (the largest one-tick
-        move of the snapshot's session, at least the reversal dead band) and, for a replay,
-        when the recording continues after the snapshot's time (a replay from its start is
-        not the state at its end). Then the state is loaded with its time re-anchored: this
-        tick comes one tick (the snapshot session's last time step) after the snapshot,
-        whatever the clock did meanwhile, so the downtime or a restarted clock is not a time
-        step (f640b8f took dt = 0 after a clock restart and predicted the damping force of
-        |dx| / 1e-12 s: 0 N and 5000-6600 N); a direct continuation is exact. The restored
-        alarms' times move into this session's time base by the same shift
-        (AlarmManager.rebase_time)."""
-        meta, kernel, alarms = self._pending_restore
-        self._pending_restore = None
-        p = self.snapshot_path
-        try:
-            out = self.predictor.tick(tick.t, tick.motor_length, tick.position, tick.orientation,
-                                      tick.force, tick.temperature)
-            x1 = out.elongation.copy()
-            pos, quat = out.position.copy(), out.orientation.copy()
-        except Exception:  # noqa: BLE001 - the tick itself is counted by step()
-            self.predictor.reset()
-            return
-        self.predictor.reset()
-        t_snap = meta.get("t")
-        x_snap = np.array([np.nan if v is None else v for v in (meta.get("elongation") or [])], dtype=float)
-        why = None
-        if x_snap.shape != x1.shape or not np.all(np.isfinite(x_snap)) or not isinstance(t_snap, (int, float)):
-            why = "it holds no elongation to compare with"
-        else:
-            step = np.asarray(meta.get("step_max") or np.zeros_like(x1), dtype=float)
-            tol = np.maximum(self._restore_tolerance(), step if step.shape == x1.shape else 0.0)
-            jump = np.abs(x1 - x_snap)
-            bad = np.flatnonzero(~(jump <= tol))
-            if bad.size:
-                i = int(bad[np.argmax(jump[bad] / tol[bad])])
-                why = (f"cable {i} ({self.geom.cable_names[i]}) is at elongation {x1[i] * 1e3:.4f} mm, "
-                       f"{jump[i] * 1e3:.4f} mm from the snapshot's {x_snap[i] * 1e3:.4f} mm, more than one tick "
-                       f"can move ({tol[i] * 1e3:.4f} mm): the cables moved since")
-            elif self.source_id.startswith("replay:") and tick.t < t_snap:
-                why = (f"the replay starts at t = {tick.t:.3f} s, before the snapshot's t = {t_snap:.3f} s: "
-                       "the state at its end is not the state at its start")
-        if why:
-            log.warning("not restoring %s: %s; starting from rest", p, why)
-            self.snapshot_error = f"not restored: {why}"
-            return
-        try:
-            dt = meta.get("dt_last")
-            dt = float(dt) if isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0 else 0.0
-            k = dict(kernel)
-            k["t_prev"] = np.array([tick.t - dt])
-            if not np.all(np.isfinite(np.asarray(k.get("pose.position", np.nan), dtype=float))):
-                k["pose.position"] = pos.reshape(1, 3)
-                k["pose.orientation"] = quat.reshape(1, 4)
-            self.predictor.load_state_dict(k)
-            if alarms:
-                self.alarms.load_state_dict(alarms)
-                self.alarms.rebase_time(tick.t - dt - float(t_snap))
-        except Exception as e:  # noqa: BLE001 - a bad snapshot must never stop the loop
-            self.predictor.reset()
-            self.snapshot_error = f"not restored: {e}"
-            log.warning("not restoring %s: %s; starting from rest", p, e)
-            return
-        self.restored_from = str(p)
-        clock = "" if tick.t >= t_snap else " (the controller clock restarted)"
-        log.info("restored hysteresis state from %s (seq %s, t %s; first tick t %s%s)", p, meta.get("seq"),
-                 t_snap, tick.t, clock)
-
-    def _restore(self) -> None:
-        p = self.snapshot_path
-        if p is None or not p.exists():
-            return
-        try:
-            meta, kernel, alarms = read_snapshot(p)
-            why = None
-            if meta.get("format") != SNAPSHOT_FORMAT:
-                why = f"snapshot format {meta.get('format')} (expected {SNAPSHOT_FORMAT})"
-            elif meta.get("robot") != self.name:
-                why = f"it belongs to robot {meta.get('robot')!r}"
-            elif meta.get("params") != self.fingerprint:
-                why = "it was made with other model parameters"
-            elif meta.get("source") != self.source_id and str(meta.get("source")).startswith("sim:"):
-                why = "it was written by another start of the embedded simulator, which starts from rest"
-            elif meta.get("source") != self.source_id:
-                # another input's state (the live robot's, seen from a replay): neither used nor
-                # replaced; this run writes no snapshot
-                why = f"it belongs to source {meta.get('source')!r}, not {self.source_id!r}"
-                log.warning("not restoring %s: %s; starting from rest, and leaving that file alone "
-                            "(this run writes no snapshot)", p, why)
-                self.snapshot_error = f"not restored and not overwritten: {why}"
-                self.snapshot_path = None
-                return
-            if why:
-                log.warning("not restoring %s: %s; starting from rest", p, why)
-                self.snapshot_error = f"not restored: {why}"
-                return
-            if kernel:
-                self._pending_restore = (meta, kernel, alarms)     # checked against the first tick
-                log.info("read hysteresis state from %s (seq %s, t %s); it is used if the first tick is "
-                         "consistent with it", p, meta.get("seq"), meta.get("t"))
-        except Exception as e:  # noqa: BLE001 - a bad snapshot must never stop the start
-            self.predictor.reset()
-            self.snapshot_error = f"not restored: {e}"
-            log.warning("not restoring %s: %s; starting from rest", p, e)
-
-    def snapshot(self) -> None:
-        """Write the hysteresis and alarm state atomically (no-op without a snapshot path, and
-        before the first tick while a read snapshot waits for it: the file already holds it)."""
-        if self.snapshot_path is None or self._pending_restore is not None:
-            return
-        try:
-            write_snapshot(self.snapshot_path, self._snapshot_meta(), self.predictor.state_dict(),
-                           self.alarms.state_dict())
-            if self.snapshot_error and self.snapshot_error.startswith("snapshot failed"):
-                self.snapshot_error = None        # (why a snapshot was not restored stays)
-        except Exception as e:  # noqa: BLE001 - a full disk must not stop the daemon
-            self.snapshot_error = f"snapshot failed: {e}"
-            log.error("%s", self.snapshot_error)
-        self._last_snapshot = time.monotonic()
-
-    # -- parameter reload -----------------------------------------------------------------
-    def _model_status(self) -> dict[str, Any]:
-        """The active model for status: name, where its parameters came from, fingerprint,
-        parameters, the discovered terms its file lists, since when it is active."""
-        p = self.params
-        terms = p.identification.get("discovered_terms") if isinstance(p.identification, dict) else None
-        return {"name": p.model, "params_file": p.source, "source": self.params_origin,
-                "fingerprint": self.fingerprint, "params": jsonable(p.params), "options": jsonable(p.options),
-                "terms": list(terms) if isinstance(terms, (list, tuple)) else [],
-                "active_since": dict(self.params_since), "identification": jsonable(p.identification)}
-
-    def request_reload(self, text: str | bytes | None = None, *, origin: str = "SIGHUP", reply=None) -> None:
-        """Ask for new parameters without waiting: ``text`` the TOML text of a parameter
-        file, or None to re-read :attr:`params_file`. Safe in a signal handler (a put on a
-        SimpleQueue); the reload thread does the work (:meth:`reload_params`). ``reply``:
-        called with the outcome (a dict) when it is known."""
-        self._reload_q.put((text, origin, reply))
-
-    def _reload_worker(self) -> None:
-        while True:
-            item = self._reload_q.get()
-            if item is None:
-                return
-            text, origin, reply = item
-            try:
-                result = self.reload_params(text, origin=origin)
-            except Exception as e:  # noqa: BLE001 - the thread must survive anything
-                log.exception("parameter reload failed: %s", e)
-                result = {"accepted": False, "origin": origin, "reason": f"internal error: {e}"}
-            if reply is not None:
-                try:
-                    reply(result)
-                except Exception as e:  # noqa: BLE001
-                    log.error("replying to a parameter reload failed: %s", e)
-
-    def _on_params_put(self, data: bytes, origin: str) -> None:
-        """A put on cablesvc/<robot>/params (a Zenoh thread): queue it, return at once."""
-        self.request_reload(bytes(data), origin=origin)
-
-    def _on_params_query(self, query, data: bytes | None) -> None:
-        """A get on cablesvc/<robot>/params (a Zenoh thread). With a payload: a reload whose
-        outcome is the reply; without: the active parameters (TOML) and their fingerprint."""
-        pub = self.publisher
-        if data is None or not bytes(data).strip():
-            pub.reply_params(query, {"robot": self.name, "model": self._model_status(),
-                                     "toml": self.params.to_toml()})
-            return
-        self.request_reload(bytes(data), origin=f"zenoh get on cablesvc/{self.name}/params",
-                            reply=lambda result: pub.reply_params(query, result) if pub is not None else None)
-
-    def reload_params(self, text: str | bytes | None = None, *, origin: str = "api",
-                      timeout: float = 5.0) -> dict[str, Any]:
-        """Load new parameters: parse and check ``text`` (a parameter file's TOML) or the
-        parameter file (None), build and warm up the new kernel here (not in the loop), hand
-        it to the loop and wait up to ``timeout`` s until the loop has switched at a tick
-        boundary. Returns the outcome: ``accepted``, ``reason`` (refused), ``fingerprint``,
-        ``model``, ``state`` (what happened to the hysteresis state), ``applied`` and the
-        ``seq`` / ``t`` of the last tick before the switch. Never raises for a bad file."""
-        from cablesvc.config.params import ParamFileError, load_params, parse_params
-
-        try:
-            if text is not None and len(text) > MAX_PARAMS_BYTES:
-                raise ParamFileError(f"<{origin}>", [f"{len(text)} bytes: a parameter file is at most "
-                                                     f"{MAX_PARAMS_BYTES} bytes"])
-            if text is None:
-                if self.params_file is None:
-                    raise ParamFileError("(no parameter file)", [
-                        "the daemon started with nominal parameters and has no file to re-read; put a parameter "
-                        f"file on cablesvc/{self.name}/params or restart with --params"])
-                params = load_params(self.params_file)
-                src = f"file {self.params_file} ({origin})"
-            else:
-                params = parse_params(text, f"<{origin}>")
-                src = origin
-            if params.robot and params.robot != self.name:
-                raise ParamFileError(params.source, [f"robot: the parameters were identified for robot "
-                                                     f"{params.robot!r}, not {self.name!r}"])
-            new = Predictor(self.geom, params)       # builds the model: checks the cable count, options, ...
-            params.amplitude_range()                 # the alarms need it valid
-            last = self._last_tick
-            if last is not None:                     # one tick now: compiles and allocates off the loop
-                try:
-                    new.tick(last.t, last.motor_length, last.position, last.orientation, last.force,
-                             last.temperature)
-                except Exception as e:  # noqa: BLE001 - only a warm-up: the loop counts what fails live
-                    log.warning("the new kernel's warm-up tick failed (%s); switching anyway", e)
-                new.reset()
-        except ParamFileError as e:
-            where = "" if str(e.path).startswith("<") else f"{e.path}: "
-            return self._refuse(origin, where + "; ".join(e.problems))
-        except Exception as e:  # noqa: BLE001 - whatever the file holds, the daemon goes on
-            return self._refuse(origin, f"{type(e).__name__}: {e}")
-        change = _ParamsChange(params=params, predictor=new, fingerprint=params_fingerprint(params), origin=src)
-        with self._state_lock:
-            prev = self._pending_params
-            if prev is not None:                     # a newer request replaces one not yet taken
-                prev.result = {"accepted": False, "origin": prev.origin, "applied": False,
-                               "reason": "superseded by a newer reload before the loop took it"}
-                prev.done.set()
-            self._pending_params = change
-        if not change.done.wait(timeout):
-            log.warning("new parameters (%s, %s %s) wait for the loop: it has not switched within %g s", src,
-                        params.model, change.fingerprint, timeout)
-            return {"accepted": True, "applied": False, "origin": src, "fingerprint": change.fingerprint,
-                    "model": params.model, "reason": f"the loop has not taken it within {timeout:g} s; it switches "
-                                                     "between the next two ticks"}
-        r = change.result
-        if r.get("applied"):
-            log.info("new parameters active from the tick after seq %s (t %s): %s %s from %s (was %s); hysteresis "
-                     "state: %s", r["seq"], r["t"], r["model"], r["fingerprint"], r["origin"], r["previous"], r["state"])
-        return r
-
-    def _refuse(self, origin: str, reason: str) -> dict[str, Any]:
-        """A reload that is refused: logged, counted, kept for status, raised as the
-        ``params_refused`` alarm (once; its message follows the latest refusal)."""
-        from cablesvc.alarms import ALARM_CODES, AlarmEvent
-
-        log.error("new parameters (%s) refused, the old ones stay active (%s): %s", origin, self.fingerprint, reason)
-        result = {"accepted": False, "applied": False, "origin": origin, "reason": reason,
-                  "active_fingerprint": self.fingerprint, "wall_time": time.time()}
-        with self._state_lock:
-            self.reload_counts["refused"] += 1
-            self.last_reload = result
-            from cablesvc.sources.base import Problem
-            self.problems.append(Problem(time.time(), "params_refused", f"{origin}: {reason}"[:2000]))
-            t = self.stats.last_t if self.stats.last_t is not None else 0.0
-            ev = AlarmEvent(action="raise", code="params_refused", cable=None,
-                            severity=ALARM_CODES["params_refused"][0], t=t,
-                            since=self._params_alarm.since if self._params_alarm is not None else t,
-                            seq=self.stats.last_seq,
-                            message=f"new parameters ({origin}) refused, {self.params.model} {self.fingerprint} "
-                                    f"stays active: {reason}"[:2000])
-            self._params_alarm = ev
-            self._emit(ev)
-        return result
-
-    def _apply_params(self) -> None:
-        """Switch to the pending parameters (the loop, between two ticks, under the state lock)."""
-        from cablesvc.alarms import AlarmEvent
-
-        change, self._pending_params = self._pending_params, None
-        old, new = self.predictor, change.predictor
-        state = _hand_over(old, new)
-        s = self.stats
-        t = s.last_t if s.last_t is not None else 0.0
-        changed = change.fingerprint != self.fingerprint
-        old_desc = f"{self.params.model} {self.fingerprint}"
-        self.predictor = new
-        self.params = change.params
-        self.fingerprint = change.fingerprint
-        self.params_origin = change.origin
-        self.params_since = {"wall_time": time.time(), "seq": s.last_seq, "t": s.last_t, "origin": change.origin}
-        events = self.alarms.set_params(change.params, t, s.last_seq)
-        if changed:        # another model: the residual's baseline is another one too
-            events += self.alarms.reset_drift()
-        if self._params_alarm is not None:
-            raised, self._params_alarm = self._params_alarm, None
-            events.append(AlarmEvent("clear", "params_refused", None, "info", t, raised.since, s.last_seq,
-                                     f"new parameters ({change.origin}) accepted"))
-        for ev in events:
-            self._emit(ev)
-        if self._pending_restore is not None and changed:
-            self._pending_restore = None             # that state belongs to the old parameters
-            self.snapshot_error = "not restored: the parameters changed before the first tick"
-        if self.snapshot_path is not None:
-            self._last_snapshot = -math.inf          # the next loop pass writes one for the new parameters
-        self.reload_counts["accepted"] += 1
-        result = {"accepted": True, "applied": True, "origin": change.origin, "model": change.params.model,
-                  "fingerprint": change.fingerprint, "previous": old_desc, "state": state,
-                  "seq": s.last_seq, "t": s.last_t, "wall_time": time.time()}
-        self.last_reload = result
-        change.result = result
-        change.done.set()                          # the reload thread logs it (no log I/O in the loop)
 
     # -- status ---------------------------------------------------------------------------
     def tick_rate(self) -> float:
