@@ -10,12 +10,15 @@ its traceback.
 More specific classes live next to the code that raises them (``ParamFileError`` in
 ``config/params.py``, ``SourceConfigError`` in ``sources/base.py``, ...) and derive from
 one of the area classes here; ``RecordingError``, ``IdentifyError``, ``DiscoveryError`` and
-``SimulationError`` are raised as they are. Where a class was a ``ValueError`` or a
+``SimulationError`` are raised as they are (``cablesvc.recording`` and the other packages
+export them under the same names). Where a class was a ``ValueError`` or a
 ``RuntimeError`` before, it still is (it derives from both), so code that catches the
 built-in keeps working.
 """
 
 from __future__ import annotations
+
+from typing import Any, Optional
 
 __all__ = ["CablesvcError", "ConfigError", "RecordingError", "SourceError", "ModelError", "IdentifyError",
            "DiscoveryError", "SimulationError", "ServiceError", "BatchError"]
@@ -31,8 +34,27 @@ class ConfigError(CablesvcError):
 
 
 class RecordingError(CablesvcError):
-    """A recording (MCAP or CSV) cannot be read or written; the message names the file and
-    the message, line or field at fault."""
+    """A recording file (MCAP or CSV, format 1 or 2) cannot be read or written.
+
+    ``path`` is the file, ``location`` where in it (``"message 17 on /cablesvc/input"``,
+    ``"line 42, column f3"``, ``"metadata"``, ``"file"``), ``reason`` what is wrong; printed as
+    ``path: location: reason``. Message indexes are 0-based in file order among the messages
+    of that topic (= the row of the tick in the recording); CSV line numbers are 1-based
+    physical lines. ``RecordingError(message)`` alone is a message with no location.
+    """
+
+    def __init__(self, path: Any, location: Optional[str] = None, reason: Optional[str] = None):
+        # args as given: Dask and pickle rebuild the exception from them
+        if reason is None and location is None:
+            super().__init__(str(path))
+        else:
+            super().__init__(str(path), location or "file", reason)
+        self.path = str(path)
+        self.location = location or "file"
+        self.reason = reason
+
+    def __str__(self) -> str:
+        return self.path if self.reason is None else f"{self.path}: {self.location}: {self.reason}"
 
 
 class SourceError(CablesvcError):

@@ -30,7 +30,7 @@ from typing import Any, BinaryIO, Iterable, Iterator, Optional, TypedDict, Union
 
 import numpy as np
 
-from cablesvc.errors import RecordingError as _RecordingErrorArea
+from cablesvc.errors import RecordingError
 
 PathArg = Union[str, "PathLike[str]"]
 
@@ -57,29 +57,6 @@ class Tick(TypedDict):
     motor_length: np.ndarray
     force: Optional[np.ndarray]
     temperature: Optional[float]
-
-
-class RecordingError(_RecordingErrorArea):
-    """A recording file cannot be read (or written) as format 1 or 2.
-
-    ``path`` is the file, ``location`` where in it (``"message 17 on /cablesvc/input"``,
-    ``"line 42, column f3"``, ``"metadata"``, ``"file"``), ``reason`` what is wrong.
-    Message indexes are 0-based in file order among the messages of that topic (= the row of
-    the tick in the :class:`Recording`); CSV line numbers are 1-based physical lines.
-
-    It is the area class :class:`cablesvc.errors.RecordingError` with these three fields
-    (the area class takes one message only), so ``except cablesvc.errors.RecordingError``
-    catches every recording error.
-    """
-
-    def __init__(self, path: PathArg, location: Optional[str], reason: str):
-        super().__init__(str(path), location or "file", reason)
-        self.path = str(path)
-        self.location = location or "file"
-        self.reason = reason
-
-    def __str__(self) -> str:
-        return f"{self.path}: {self.location}: {self.reason}"
 
 
 #: the range of ``seq`` (a signed 64-bit integer in every format and encoding)
