@@ -58,6 +58,10 @@ def max_live_substeps(integrator: str) -> int:
 # * the backward-Euler step for n = 1 (the discovery term's normalised z, k = 1):
 #   bouc_wen_step_n1 (numba, offline over a record) and bouc_wen_step_n1_np (numpy, live, tick
 #   by tick); the same arithmetic, so offline and live agree to the last bit.
+# numba's on-disk cache (cache=True) of a caller checks only the caller's own file: after an
+# edit of a numba form here, delete the callers' cached entries (the *.nbi / *.nbc of
+# simulate/oscillator.py, beam/solver.py and models/terms.py in their __pycache__) or they
+# keep running the old law.
 
 def bouc_wen_slope(z, sdx, k, beta, gamma, n, out, c, a):
     """out = dz/dx = k - (gamma + beta sgn(z sdx)) |z|^n (numpy, in place; sdx = sgn(dx));
