@@ -29,6 +29,7 @@ from typing import Any, ClassVar, Optional
 import numpy as np
 
 from cablesvc.config.robot import Robot, RobotGeometry, robot_search_path
+from cablesvc.errors import SourceError
 
 __all__ = [
     "DEFAULT_MAX_MOTOR_LENGTH",
@@ -50,7 +51,7 @@ DEFAULT_MAX_MOTOR_LENGTH = 100.0
 PROBLEM_BUFFER = 1000
 
 
-class SourceConfigError(ValueError):
+class SourceConfigError(SourceError, ValueError):
     """A source configuration (or a file it names: DBC, register map) that cannot be used.
 
     The message names the field (``can.dbc``, ``modbus.register_map``, ``replay.path``, or

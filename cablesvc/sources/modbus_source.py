@@ -39,6 +39,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from cablesvc.config.robot import Robot
+from cablesvc.errors import SourceError
 from cablesvc.sources.base import (
     Rejection,
     SourceConfigError,
@@ -495,6 +496,20 @@ class ModbusSource(ThreadedSource):
         client: Optional[Any] = None
         multi = len(self.register_map.read_plan) > 1
         next_poll = time.monotonic()
+
+        async def lost(message: str) -> None:
+            """The link is down: report ``disconnected`` (``message``) once per outage, drop
+            the client, wait the backoff and double it (up to 2 s)."""
+            nonlocal backoff, client, down_since
+            if down_since is None:
+                down_since = time.monotonic()
+                self._report("disconnected", message, kind="event")
+            if client is not None:
+                client.close()
+            client = None
+            await asyncio.sleep(backoff)
+            backoff = min(2.0, backoff * 2)
+
         try:
             while not self._stop.is_set():
                 if client is None or not client.connected:
@@ -509,14 +524,7 @@ class ModbusSource(ThreadedSource):
                     except Exception as exc:  # noqa: BLE001 - socket errors of any kind
                         err = repr(exc)
                     if not ok:
-                        if down_since is None:
-                            down_since = time.monotonic()
-                            self._report("disconnected", f"cannot connect ({err}); retrying with backoff up to 2 s",
-                                         kind="event")
-                        client.close()
-                        client = None
-                        await asyncio.sleep(backoff)
-                        backoff = min(2.0, backoff * 2)
+                        await lost(f"cannot connect ({err}); retrying with backoff up to 2 s")
                         continue
                     # ``reconnected`` and the backoff reset wait for a successful read: a
                     # server that accepts and then fails every read is still one outage
@@ -530,14 +538,7 @@ class ModbusSource(ThreadedSource):
                 except asyncio.CancelledError:
                     raise
                 except Exception as exc:  # noqa: BLE001 - pymodbus raises ModbusException, OSError, TimeoutError
-                    if down_since is None:
-                        down_since = time.monotonic()
-                        self._report("disconnected", f"connection lost: {exc!r}; reconnecting with backoff up to 2 s",
-                                     kind="event")
-                    client.close()
-                    client = None
-                    await asyncio.sleep(backoff)
-                    backoff = min(2.0, backoff * 2)
+                    await lost(f"connection lost: {exc!r}; reconnecting with backoff up to 2 s")
                     continue
                 if blocks is not None:
                     backoff = 0.05
@@ -605,5 +606,5 @@ class ModbusSource(ThreadedSource):
         self._join_thread(0.9)
 
 
-class _ModbusErrorResponse(Exception):
+class _ModbusErrorResponse(SourceError):
     """The server answered a read with a Modbus exception response (or too few registers)."""
