@@ -41,7 +41,7 @@ def test_robots_check_reports_every_problem(tmp_path):
 def test_run_embedded_default_runs_and_stops_cleanly():
     """`cablesvc run` as the README runs it (simulated controller on virtual CAN, Zenoh peer),
     here on a free port and for a few seconds."""
-    from cablesvc.sources.controller import free_tcp_port
+    from cablesvc.netutil import free_tcp_port
 
     r = cli("run", "--no-view", "--no-snapshot", "--seconds", "4", "--listen", f"tcp/127.0.0.1:{free_tcp_port()}")
     assert r.returncode == 0, r.stderr
@@ -55,7 +55,7 @@ def test_run_view_shows_an_alarm_raised_before_any_tick():
     """With the terminal view on (the default) and a bus that never sends, input_lost is
     raised before the first tick, so its `since` is null: the view shows "-" and the daemon
     runs its time and exits 0."""
-    from cablesvc.sources.controller import free_tcp_port
+    from cablesvc.netutil import free_tcp_port
 
     r = cli("run", "--robot", "ipanema3", "--source", "can", "--interface", "virtual", "--channel", "cablesvc-silent",
             "--no-snapshot", "--seconds", "3", "--listen", f"tcp/127.0.0.1:{free_tcp_port()}")
@@ -75,7 +75,7 @@ def test_run_start_up_failures_are_one_clear_line(tmp_path):
     """A Zenoh port already taken and an unknown CAN interface: exit 1, no traceback."""
     import socket
 
-    from cablesvc.sources.controller import free_tcp_port
+    from cablesvc.netutil import free_tcp_port
 
     rec = tmp_path / "r.mcap"
     assert cli("simulate", "--scenario", "hold-sine", "--duration", "0.5", "--out", str(rec)).returncode == 0

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from cablesvc.config import load_robot
-from cablesvc.sources.controller import cached_there_and_back_recording, there_and_back_recording
+from cablesvc.sources.simulated import cached_there_and_back_recording, there_and_back_recording
 
 FIELDS = ("t", "seq", "motor_length", "position", "orientation", "force", "temperature")
 

@@ -15,7 +15,7 @@ from cablesvc.config import load_robot
 from cablesvc.recording import RecordingError, iter_csv_inputs, read_recording, write_recording
 from cablesvc.simulate import simulate_recording
 from cablesvc.sources import open_source
-from cablesvc.sources.controller import free_tcp_port
+from cablesvc.netutil import free_tcp_port
 
 
 @pytest.fixture(scope="module")

@@ -69,7 +69,7 @@ import time
 
 from cablesvc.recording import read_recording, write_recording
 from cablesvc.simulate import simulate_recording
-from cablesvc.sources.controller import free_tcp_port
+from cablesvc.netutil import free_tcp_port
 from reference import assert_matches_offline, offline_forces
 
 
@@ -148,7 +148,7 @@ def test_snapshot_at_sigterm_is_restored_and_the_hysteresis_continues(tmp_path: 
 
 
 def test_modbus_controller_to_subscriber(tmp_path: Path):
-    from cablesvc.sources.controller import ModbusController
+    from cablesvc.sources.simulated import ModbusController
 
     mport, zport = free_tcp_port(), free_tcp_port()
     ctl = ModbusController("ipanema3", host="127.0.0.1", port=mport, rate=100.0, duration=4.0, history=5000)
@@ -174,7 +174,7 @@ def test_modbus_controller_to_subscriber(tmp_path: Path):
 
 def test_can_controller_in_another_process_to_subscriber(tmp_path: Path):
     from cablesvc.bench.e2e import write_daemon_config
-    from cablesvc.sources.can_source import free_udp_port, loopback_bus_config
+    from cablesvc.netutil import free_udp_port, loopback_bus_config
 
     bus = loopback_bus_config(free_udp_port())
     zport = free_tcp_port()
@@ -187,7 +187,7 @@ def test_can_controller_in_another_process_to_subscriber(tmp_path: Path):
                           "--record", str(tmp_path / "out.mcap")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                          text=True)
     time.sleep(3.0)
-    ctl = subprocess.run([sys.executable, "-m", "cablesvc.sources.controller", "--transport", "can", "--rate", "200",
+    ctl = subprocess.run([sys.executable, "-m", "cablesvc.sources.simulated", "--transport", "can", "--rate", "200",
                           "--seconds", "3", "--duration", "4", "--bus-config", json.dumps(bus),
                           "--record", str(tmp_path / "sent.mcap")], capture_output=True, text=True, timeout=120)
     assert ctl.returncode == 0, ctl.stderr
@@ -352,7 +352,7 @@ def test_recording_has_every_alarm_raise_before_its_clear_and_status_survives_cl
     from cablesvc.recording import write_recording
     from cablesvc.service.daemon import Daemon, DaemonOptions
     from cablesvc.simulate import simulate_recording
-    from cablesvc.sources.controller import free_tcp_port
+    from cablesvc.netutil import free_tcp_port
 
     rec = simulate_recording("planar4", "trajectory", None, duration=1.0, rate=100.0, seed=1)
     rec.t[50:] += 0.3

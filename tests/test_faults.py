@@ -34,7 +34,7 @@ import pytest
 from cablesvc.recording import McapRecordingWriter, read_recording
 from cablesvc.service.zenoh_io import Listener, make_config
 from cablesvc.simulate import simulate_recording
-from cablesvc.sources.controller import free_tcp_port
+from cablesvc.netutil import free_tcp_port
 from reference import assert_matches_offline, offline_forces
 
 ROBOT = "ipanema3"
@@ -386,7 +386,7 @@ def test_modbus_server_down_and_back_the_daemon_reconnects(tmp_path: Path):
     the same port 2.5 s later: the daemon stays up, reports disconnected / reconnected,
     raises input_lost during the outage and clears it after, rejects nothing, and the forces
     after the reconnection are the offline kernel's over what it received."""
-    from cablesvc.sources.controller import ModbusController
+    from cablesvc.sources.simulated import ModbusController
 
     mport, zport = free_tcp_port(), free_tcp_port()
     ctl = ModbusController(ROBOT, host="127.0.0.1", port=mport, rate=100.0, duration=4.0, history=10_000)
@@ -461,7 +461,8 @@ def test_can_bus_with_injected_faults_reconciles_every_seq(tmp_path: Path):
 
     from cablesvc.bench.e2e import write_daemon_config
     from cablesvc.sources import encode_tick, load_can_layout
-    from cablesvc.sources.can_source import free_udp_port, loopback_bus_config, open_bus
+    from cablesvc.netutil import free_udp_port, loopback_bus_config
+    from cablesvc.sources import open_bus
 
     REPO = Path(__file__).resolve().parents[1]
     layout = load_can_layout(REPO / "robots" / "ipanema3-fd.dbc", 8)

@@ -35,7 +35,7 @@ from cablesvc.service.snapshot import read_snapshot
 from cablesvc.service.fleet import Fleet, FleetError, FleetStartError
 from cablesvc.service.zenoh_io import Listener, Publisher, keys, make_config
 from cablesvc.simulate import simulate_recording
-from cablesvc.sources.controller import free_tcp_port
+from cablesvc.netutil import free_tcp_port
 from reference import offline_forces
 
 

@@ -51,7 +51,7 @@ from cablesvc.recording import (
     write_recording,
 )
 from cablesvc.sources.base import Rejection, SourceConfigError, TickInput, TickValidator
-from cablesvc.sources.can_source import EVENT_REASONS, TickAssembler, encode_tick, load_can_layout
+from cablesvc.sources.can import EVENT_REASONS, TickAssembler, encode_tick, load_can_layout
 from cablesvc.sources.modbus_source import RegisterMap, load_register_map
 
 ROBOTS = Path(__file__).resolve().parents[1] / "robots"

@@ -15,7 +15,7 @@ from cablesvc.config.params import ModelParams, ParamFileError, default_params, 
 from cablesvc.models import ModelParameterError
 from cablesvc.models.boucwen import CALLS_PER_SUBSTEP, BoucWen, max_live_substeps
 from cablesvc.simulate import simulate_recording
-from cablesvc.sources.controller import free_tcp_port
+from cablesvc.netutil import free_tcp_port
 
 BW = 'k_e = 5.0e4\nk_d = 2.0e5\nbeta = 1.0e-3\ngamma = 5.0e-4\nn = 1.5\n'
 

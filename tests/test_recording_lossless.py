@@ -23,7 +23,7 @@ from cablesvc.service.daemon import Daemon, DaemonOptions
 from cablesvc.service.recorder import Recorder
 from cablesvc.simulate import simulate_recording
 from cablesvc.sources.base import TickInput
-from cablesvc.sources.controller import free_tcp_port
+from cablesvc.netutil import free_tcp_port
 
 
 def _run(args: list[str], cwd: Path, timeout: float = 180) -> subprocess.CompletedProcess:

@@ -13,7 +13,7 @@ import pytest
 
 from cablesvc.config import load_robot
 from cablesvc.sources import make_dbc
-from cablesvc.sources.controller import free_tcp_port
+from cablesvc.netutil import free_tcp_port
 
 ROBOTS_DIR = Path(__file__).resolve().parent.parent / "robots"
 SHIPPED = sorted(p.stem for p in ROBOTS_DIR.glob("*.toml") if not p.name.endswith(".modbus.toml"))

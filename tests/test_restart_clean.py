@@ -26,7 +26,7 @@ from cablesvc.recording import ALARMS_TOPIC, FORCES_TOPIC, write_recording
 from cablesvc.service.daemon import Daemon, DaemonOptions
 from cablesvc.service.snapshot import read_snapshot
 from cablesvc.simulate import simulate_recording
-from cablesvc.sources.controller import free_tcp_port
+from cablesvc.netutil import free_tcp_port
 
 from reference import offline_forces
 

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from cablesvc.sources.controller import free_tcp_port
+from cablesvc.netutil import free_tcp_port
 
 
 def cli(*args, timeout=120):

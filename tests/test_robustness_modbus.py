@@ -27,7 +27,8 @@ from cablesvc.config import load_robot
 from cablesvc.recording import Recording
 from cablesvc.simulate import simulate_recording
 from cablesvc.sources import SourceConfigError, TickInput, load_register_map, open_source
-from cablesvc.sources.controller import ModbusController, free_tcp_port
+from cablesvc.netutil import free_tcp_port
+from cablesvc.sources.simulated import ModbusController
 from cablesvc.sources.modbus_source import MAX_REGISTERS_PER_READ
 
 

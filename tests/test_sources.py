@@ -29,15 +29,14 @@ from cablesvc.sources import (
     TickInput,
     TickValidator,
     encode_tick,
-    free_udp_port,
     load_can_layout,
     load_register_map,
-    loopback_bus_config,
     make_dbc,
     open_source,
 )
-from cablesvc.sources.can_source import FD_LENGTHS, FrameCodec
-from cablesvc.sources.controller import CanController, ModbusController, free_tcp_port
+from cablesvc.netutil import free_tcp_port, free_udp_port, loopback_bus_config
+from cablesvc.sources.can import FD_LENGTHS, FrameCodec
+from cablesvc.sources.simulated import CanController, ModbusController
 
 REPO = Path(__file__).resolve().parents[1]
 DBC = REPO / "robots" / "ipanema3.dbc"
@@ -503,7 +502,7 @@ def test_simulated_controller_forces_follow_the_played_motion_backwards_too(robo
     whole cycles, in both directions and across the seam where the cycle loops."""
     from cablesvc.config.params import nominal_params
     from cablesvc.kernel import Predictor
-    from cablesvc.sources.controller import SimulatedController
+    from cablesvc.sources.simulated import SimulatedController
 
     geom = robot.geometry()
     c = SimulatedController(robot, scenario="trajectory", rate=200.0, seed=1, duration=3.0)
@@ -682,7 +681,7 @@ def _across_processes(robot, tmp_path, *, fd: bool, rate: float, n: int) -> dict
     got: list[TickInput] = []
     with src:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "cablesvc.sources.controller", "--transport", "can", "--port", str(port),
+            [sys.executable, "-m", "cablesvc.sources.simulated", "--transport", "can", "--port", str(port),
              "--rate", str(rate), "--ticks", str(n), "--seconds", "40", "--duration", "0.5", "--seed", "5",
              "--record", str(record)] + (["--fd"] if fd else []),
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,

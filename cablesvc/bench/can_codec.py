@@ -4,9 +4,9 @@ For the classic layout (``robots/<robot>.dbc``, one frame per cable plus five pl
 frames and SYNC) and the CAN FD layout (``robots/<robot>-fd.dbc``, two frames for up to
 8 cables), per tick, with garbage collection off while timing:
 
-* ``encode_us``: :func:`~cablesvc.sources.can_source.encode_tick` (values -> python-can
+* ``encode_us``: :func:`~cablesvc.sources.can.encode_tick` (values -> python-can
   messages; the compiled plan, no cantools call);
-* ``assemble_us``: :meth:`~cablesvc.sources.can_source.TickAssembler.feed` of every frame
+* ``assemble_us``: :meth:`~cablesvc.sources.can.TickAssembler.feed` of every frame
   of the tick (the last one completes it: one :class:`~cablesvc.sources.base.TickInput`);
 * ``total_us``: the two together, per tick;
 * ``cantools_*_us``: the baseline measured in the same run: cantools'
@@ -16,8 +16,8 @@ frames and SYNC) and the CAN FD layout (``robots/<robot>-fd.dbc``, two frames fo
   ``speedup``: cantools total / total at p50.
 
 ``receive`` > 0 also sends that many ticks over python-can's ``udp_multicast`` loopback
-bus (:func:`~cablesvc.sources.can_source.loopback_bus_config`) to a live
-:class:`~cablesvc.sources.can_source.CanSource` in this process and reports the CPU time
+bus (:func:`~cablesvc.netutil.loopback_bus_config`) to a live
+:class:`~cablesvc.sources.can.CanSource` in this process and reports the CPU time
 of its receive thread per tick (python-can receive + assembling + validation + queueing:
 ``receive_cpu_us``), of python-can's ``Bus.recv`` alone for the same frames
 (``python_can_recv_cpu_us``), and of python-can's ``Bus.send`` on the sending side
@@ -80,7 +80,7 @@ def _bench_layout(lay: Any, ticks: list, baseline_n: int) -> dict[str, Any]:
     import can
 
     from cablesvc.sources.base import TickInput
-    from cablesvc.sources.can_source import TickAssembler, encode_tick
+    from cablesvc.sources.can import TickAssembler, encode_tick
 
     asm = TickAssembler(lay, deadline_s=1.0)
     enc: list[int] = []
@@ -149,7 +149,7 @@ def run_codec_bench(n: int = 20000, robot: str = "ipanema3", *, baseline_n: Opti
     in the module docstring."""
     from cablesvc.config import load_robot
     from cablesvc.sources.base import find_robot_companion
-    from cablesvc.sources.can_source import dbc_suffix, load_can_layout
+    from cablesvc.sources.can import dbc_suffix, load_can_layout
 
     say = progress or (lambda what: None)
     rob = load_robot(robot)
@@ -187,13 +187,9 @@ def run_receive_bench(ticks: int = 5000, *, robot: str = "ipanema3", fd: bool = 
     ticks sent back to back."""
     from cablesvc.config import load_robot
     from cablesvc.sources import open_source
-    from cablesvc.sources.can_source import (
-        _grow_receive_buffer,
-        encode_tick,
-        free_udp_port,
-        loopback_bus_config,
-        open_bus,
-    )
+    from cablesvc.netutil import free_udp_port, loopback_bus_config
+    from cablesvc.sources.can import encode_tick, open_bus
+    from cablesvc.sources.can.bus import grow_receive_buffer
 
     rob = load_robot(robot)
     cfg = loopback_bus_config(free_udp_port(), fd=fd)
@@ -226,7 +222,7 @@ def run_receive_bench(ticks: int = 5000, *, robot: str = "ipanema3", fd: bool = 
             counters = src.counters.as_dict()
         # python-can's Bus.recv alone, the same frames
         raw_rx = open_bus(cfg)
-        _grow_receive_buffer(raw_rx)
+        grow_receive_buffer(raw_rx)
         for a in range(0, ticks, chunk):
             part = msgs[a:a + chunk]
             n_frames = sum(len(f) for f in part)

@@ -1,6 +1,6 @@
 """``cablesvc bench e2e``: end-to-end latency of the live daemon, three processes on loopback.
 
-* a simulated controller process (:mod:`cablesvc.sources.controller`) sends the ticks of a
+* a simulated controller process (:mod:`cablesvc.sources.simulated`) sends the ticks of a
   twin recording on a CAN bus that crosses processes but stays on this host (python-can
   ``udp_multicast`` on an interface-local IPv6 group, see ``docs/sources.md``) at
   ``--rate`` Hz, evenly spaced;
@@ -124,7 +124,7 @@ def _stop(proc: subprocess.Popen, timeout: float = 5.0) -> float:
 def run_baseline(rate: float, seconds: float, n_cables: int = 8) -> dict[str, Any]:
     """Zenoh alone: a publisher process at ``rate`` Hz, same payload shape, same subscriber."""
     from cablesvc.service.zenoh_io import Listener, make_config
-    from cablesvc.sources.controller import free_tcp_port
+    from cablesvc.netutil import free_tcp_port
 
     port = free_tcp_port()
     col = _Collector()
@@ -247,8 +247,8 @@ def run_three_processes(rate: float, seconds: float, collector: Callable[[dict, 
     to exit).
     """
     from cablesvc.service.zenoh_io import Listener, make_config
-    from cablesvc.sources.can_source import free_udp_port, loopback_bus_config
-    from cablesvc.sources.controller import free_tcp_port
+    from cablesvc.netutil import free_udp_port, loopback_bus_config
+    from cablesvc.netutil import free_tcp_port
 
     say = say or (lambda what, frac: None)
     try:
@@ -286,7 +286,7 @@ def run_three_processes(rate: float, seconds: float, collector: Callable[[dict, 
             if on_subscribed:
                 on_subscribed(daemon.pid)
             say("starting the controller", 0.0)
-            ctl = subprocess.Popen([sys.executable, "-m", "cablesvc.sources.controller", "--transport", "can",
+            ctl = subprocess.Popen([sys.executable, "-m", "cablesvc.sources.simulated", "--transport", "can",
                                     "--robot", robot, "--rate", str(rate), "--seconds", str(seconds),
                                     "--duration", "20", "--bus-config", json.dumps(bus)],
                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)

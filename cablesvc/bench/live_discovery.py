@@ -152,7 +152,7 @@ def run_effect(name: str, *, half: float = 180.0, onset: float = 75.0, ramp: flo
     from cablesvc.discover.pipeline import baseline_params
     from cablesvc.recording import write_recording
     from cablesvc.service.daemon import Daemon, DaemonOptions
-    from cablesvc.sources.controller import free_tcp_port
+    from cablesvc.netutil import free_tcp_port
 
     t_start = time.perf_counter()
     rec, cables = make_onset_recording(EFFECTS[name], half=half, onset=onset, ramp=ramp, seed=seed)

@@ -33,7 +33,7 @@ _INPUT = re.compile(r"after (\d+) ticks; input (\{.*?\}); latency")
 
 
 def _free_port() -> int:
-    from cablesvc.sources.controller import free_tcp_port
+    from cablesvc.netutil import free_tcp_port
     return free_tcp_port()
 
 

@@ -14,7 +14,7 @@ def sim_controller(robot, src: dict[str, Any], *, scenario: str | None, rate: fl
                    channel: str):
     """The embedded default: a simulated controller (not started) on a virtual CAN bus, and
     the CAN source config that reads that bus: (controller, source dict)."""
-    from cablesvc.sources.controller import CanController
+    from cablesvc.sources.simulated import CanController
 
     bus = {"interface": src.get("interface") or "virtual", "channel": channel}
     # 10 s of twin motion, played forwards and backwards without end

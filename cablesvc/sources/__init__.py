@@ -10,10 +10,12 @@
             for p in src.problems():            # rejected inputs, by reason
                 ...
 
-Kinds (:data:`SOURCES`): ``can`` (:class:`CanSource`, python-can + a DBC), ``modbus``
-(:class:`ModbusSource`, Modbus TCP polling, read-only), ``replay`` (:class:`ReplaySource`,
-MCAP/CSV recordings). Simulated controllers for each transport are in
-:mod:`cablesvc.sources.controller`. How to run beside a real controller: ``docs/sources.md``.
+Kinds (:data:`SOURCES`): ``can`` (:class:`CanSource`, python-can + a DBC; the package
+:mod:`cablesvc.sources.can`), ``modbus`` (:class:`ModbusSource`, Modbus TCP polling,
+read-only), ``replay`` (:class:`ReplaySource`, MCAP/CSV recordings). Simulated controllers
+for each transport are in :mod:`cablesvc.sources.simulated`; loopback buses and free ports
+for them, the benches and the tests in :mod:`cablesvc.netutil`. How to run beside a real
+controller: ``docs/sources.md``.
 """
 
 from __future__ import annotations
@@ -35,15 +37,13 @@ from cablesvc.sources.base import (
     TickInput,
     TickValidator,
 )
-from cablesvc.sources.can_source import (
+from cablesvc.sources.can import (
     CanLayout,
     CanSource,
     CanSourceConfig,
     TickAssembler,
     encode_tick,
-    free_udp_port,
     load_can_layout,
-    loopback_bus_config,
     make_dbc,
     open_bus,
 )
@@ -72,10 +72,8 @@ __all__ = [
     "TickInput",
     "TickValidator",
     "encode_tick",
-    "free_udp_port",
     "load_can_layout",
     "load_register_map",
-    "loopback_bus_config",
     "make_dbc",
     "open_bus",
     "open_source",

@@ -15,9 +15,9 @@ before the tick's time, then spin for the last ``spin_s`` seconds.
 
 Transports:
 
-* :class:`CanController` sends the frames of :func:`~cablesvc.sources.can_source.encode_tick`
+* :class:`CanController` sends the frames of :func:`~cablesvc.sources.can.encode_tick`
   on a python-can bus (``bus_config`` as returned by
-  :func:`~cablesvc.sources.can_source.loopback_bus_config`), classic CAN or CAN FD
+  :func:`~cablesvc.netutil.loopback_bus_config`), classic CAN or CAN FD
   (``fd``). The frames of the whole recording are encoded once at start (one numpy pass);
   each tick only adds its t, seq and tick counters.
 * :class:`ModbusController` runs a real pymodbus TCP server and updates its registers every
@@ -26,9 +26,9 @@ Transports:
 
 Run one in its own process (benchmarks, cross-process tests)::
 
-    python -m cablesvc.sources.controller --transport can --loopback --rate 1000 --seconds 10
-    python -m cablesvc.sources.controller --transport can --fd --port 43117 --rate 1000 --seconds 10
-    python -m cablesvc.sources.controller --transport modbus --port 5020 --rate 1000 --seconds 10
+    python -m cablesvc.sources.simulated --transport can --loopback --rate 1000 --seconds 10
+    python -m cablesvc.sources.simulated --transport can --fd --port 43117 --rate 1000 --seconds 10
+    python -m cablesvc.sources.simulated --transport modbus --port 5020 --rate 1000 --seconds 10
 """
 
 from __future__ import annotations
@@ -39,7 +39,6 @@ import collections
 import functools
 import json
 import os
-import socket
 import sys
 import threading
 import time
@@ -55,7 +54,6 @@ __all__ = [
     "CanController",
     "ModbusController",
     "SimulatedController",
-    "free_tcp_port",
     "main",
     "run_controller_process",
 ]
@@ -63,13 +61,6 @@ __all__ = [
 
 #: how many ticks :meth:`SimulatedController.timing` keeps (a power of two)
 _TIMING_RING = 1 << 16
-
-
-def free_tcp_port(host: str = "127.0.0.1") -> int:
-    """A TCP port on ``host`` that is free right now (for tests and demos)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
 
 
 #: packages whose code makes the twin's recordings (their source is part of the cache key)
@@ -405,10 +396,10 @@ class SimulatedController:
 
 class CanController(SimulatedController):
     """A simulated controller on a CAN bus: every tick, the frames of
-    :func:`~cablesvc.sources.can_source.encode_tick` (data frames, then SYNC).
+    :func:`~cablesvc.sources.can.encode_tick` (data frames, then SYNC).
 
     ``bus_config``: ``{"interface", "channel", "bitrate"?, "fd"?, "bus_kwargs"?}`` (for example
-    :func:`~cablesvc.sources.can_source.loopback_bus_config`); ``fd``: a CAN FD bus and the
+    :func:`~cablesvc.netutil.loopback_bus_config`); ``fd``: a CAN FD bus and the
     FD layout (None: from ``bus_config`` — its ``fd`` or ``bus_kwargs.fd`` — or from the DBC);
     ``dbc``: DBC file (None: ``<robot>.dbc``, or ``<robot>-fd.dbc`` with ``fd``);
     ``precompute``: encode the frames of every recording row once at start (t, seq and the
@@ -420,7 +411,7 @@ class CanController(SimulatedController):
                  dbc: Optional[Union[str, "os.PathLike[str]"]] = None, *, fd: Optional[bool] = None,
                  precompute: bool = True, **kwargs: Any):
         super().__init__(robot, **kwargs)
-        from cablesvc.sources.can_source import dbc_suffix, load_can_layout
+        from cablesvc.sources.can import dbc_suffix, load_can_layout
 
         self.bus_config = dict(bus_config)
         if fd is None:
@@ -453,7 +444,7 @@ class CanController(SimulatedController):
             self.precompute_s = time.perf_counter() - t0
 
     def _open(self) -> None:
-        from cablesvc.sources.can_source import open_bus
+        from cablesvc.sources.can import open_bus
 
         self._bus = open_bus(self.bus_config)
 
@@ -629,7 +620,7 @@ def run_controller_process(
     ticks are sent; returns (and prints to ``out`` as JSON lines) ``{"event": "ready"}``
     when ticking starts and a summary at the end. ``record``: write the ticks sent to this
     recording file (.mcap/.csv) at the end. ``bus_config`` (CAN): default
-    :func:`~cablesvc.sources.can_source.loopback_bus_config` on ``port`` (with ``fd``);
+    :func:`~cablesvc.netutil.loopback_bus_config` on ``port`` (with ``fd``);
     ``fd``: CAN FD bus and layout (None: as ``bus_config`` says). The summary has
     ``ticks_sent``, ``send_errors``, ``overruns`` and :meth:`SimulatedController.timing`."""
     out = sys.stdout if out is None else out
@@ -637,7 +628,7 @@ def run_controller_process(
     common = dict(scenario=scenario, rate=rate, seed=seed, duration=duration, history=keep)
     ctl: SimulatedController
     if transport == "can":
-        from cablesvc.sources.can_source import loopback_bus_config
+        from cablesvc.netutil import loopback_bus_config
 
         cfg = bus_config if bus_config is not None else loopback_bus_config(port, fd=bool(fd))
         ctl = CanController(robot, cfg, dbc=dbc, fd=fd, **common)
@@ -674,7 +665,7 @@ def run_controller_process(
         rec = Recording.from_ticks(ctl.robot.name, [
             {"seq": tk.seq, "t": tk.t, "motor_length": tk.motor_length, "position": tk.position,
              "orientation": tk.orientation, "force": tk.force, "temperature": tk.temperature} for tk in sent
-        ], metadata={"generator": "cablesvc.sources.controller", "transport": transport},
+        ], metadata={"generator": "cablesvc.sources.simulated", "transport": transport},
             n_cables=ctl.robot.n_cables)
         write_recording(record, rec)
         summary["record"] = str(record)
@@ -683,8 +674,8 @@ def run_controller_process(
 
 
 def main(argv: Optional[list[str]] = None) -> int:
-    """``python -m cablesvc.sources.controller``: see :func:`run_controller_process`."""
-    ap = argparse.ArgumentParser(prog="python -m cablesvc.sources.controller",
+    """``python -m cablesvc.sources.simulated``: see :func:`run_controller_process`."""
+    ap = argparse.ArgumentParser(prog="python -m cablesvc.sources.simulated",
                                  description="Run a simulated robot controller (CAN or Modbus TCP) in this process.")
     ap.add_argument("--transport", choices=["can", "modbus"], required=True)
     ap.add_argument("--robot", default="ipanema3")
