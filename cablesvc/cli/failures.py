@@ -1,13 +1,16 @@
 """How the command line reports a failure: every error cablesvc raises on purpose is a
-:class:`~cablesvc.errors.CablesvcError`; ``cablesvc.cli.main`` catches it in one place and
-prints one line, ``cablesvc <command>: <message>``, with the exit status of
-:func:`exit_status` (2 for a bad command-line value, as argparse does; 1 otherwise)."""
+:class:`~cablesvc.errors.CablesvcError`; :func:`run_command` (the one place, used by
+``cablesvc.cli.main``) catches it and prints one line, ``cablesvc <command>: <message>``,
+with the exit status of :func:`exit_status` (2 for a bad command-line value, as argparse
+does; 1 otherwise). Anything else is a bug and keeps its traceback."""
 
 from __future__ import annotations
 
+import sys
+
 from cablesvc.errors import CablesvcError, ConfigError, ServiceError
 
-__all__ = ["UsageError", "exit_status", "zenoh_failure"]
+__all__ = ["UsageError", "exit_status", "run_command", "zenoh_failure"]
 
 
 class UsageError(ConfigError, ValueError):
@@ -39,3 +42,15 @@ def not_yet_rooted() -> tuple[type[BaseException], ...]:
 
     return tuple(c for c in (RecordingError, SimulationError, SourceConfigError, StartError)
                  if not issubclass(c, CablesvcError))
+
+
+def run_command(args) -> int:
+    """Run the parsed command ``args.func(args)``; a :class:`CablesvcError` becomes one line
+    on stderr, ``cablesvc <command>: <message>`` (``bench kernel`` for a benchmark), and its
+    exit status."""
+    try:
+        return int(args.func(args) or 0)
+    except (CablesvcError, *not_yet_rooted()) as e:
+        command = " ".join(c for c in (args.command, getattr(args, "bench", None)) if c)
+        print(f"cablesvc {command}: {e}", file=sys.stderr)
+        return exit_status(e)

@@ -255,12 +255,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m cablesvc.cli.listen_cmd``: the listen command on its own."""
+    """``python -m cablesvc.cli.listen_cmd listen ...``: the listen command on its own (its
+    errors are one line, as from ``cablesvc listen``)."""
+    from cablesvc.cli.failures import run_command
+
     parser = argparse.ArgumentParser(prog="cablesvc")
     sub = parser.add_subparsers(dest="command", required=True)
     add_parser(sub)
-    args = parser.parse_args(argv)
-    return int(args.func(args) or 0)
+    return run_command(parser.parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -256,14 +256,8 @@ def _main(argv: list[str] | None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    from cablesvc.cli.failures import exit_status, not_yet_rooted
-    from cablesvc.errors import CablesvcError
-    try:
-        return int(args.func(args) or 0)
-    except (CablesvcError, *not_yet_rooted()) as e:   # the one place: one line, no traceback
-        command = " ".join(c for c in (args.command, getattr(args, "bench", None)) if c)   # "bench kernel"
-        print(f"cablesvc {command}: {e}", file=sys.stderr)
-        return exit_status(e)
+    from cablesvc.cli.failures import run_command
+    return run_command(args)
 
 
 if __name__ == "__main__":
