@@ -22,8 +22,10 @@ vector applied in the world frame. Hysteresis shifts the forces by a few newtons
 moves the equilibrium pose by a second-order amount; the residual |A^T f + w| after the
 last step is reported. This path too is fixed time and allocation-free after the first
 tick: the same numpy calls on preallocated buffers every step (the r x r solve, r = 6 or
-3 for planar robots, is numpy's LAPACK gufunc with an output argument), and the pose
-update in Python floats, as :class:`~cablesvc.kinematics.InverseKinematics` loads poses.
+3 for planar robots, is LAPACK's Cholesky solve ``dposv`` through scipy.linalg.lapack,
+overwriting the preallocated system and right-hand side: A^T K A plus the damping is
+symmetric positive definite), and the pose update in Python floats, as
+:class:`~cablesvc.kinematics.InverseKinematics` loads poses.
 """
 
 from __future__ import annotations
@@ -40,11 +42,11 @@ from cablesvc.kinematics.ik import PLANAR_WRENCH_ROWS
 from cablesvc.models import CableModel
 from cablesvc.models.terms import TermStack
 
-try:   # the gufunc behind np.linalg.solve, which takes an output array (np.linalg.solve does not)
-    from numpy.linalg._umath_linalg import solve1 as _solve_into
-except ImportError:  # pragma: no cover - a numpy without it: same numbers, one small allocation
-    def _solve_into(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
-        np.copyto(out, np.linalg.solve(a, b))
+from scipy.linalg.lapack import dposv as _dposv
+
+#: dp's scale after the Cholesky solve, by "the factorisation failed" (a system that is not
+#: positive definite): NaN then, as a singular LU solve gives, so the FK reports divergence
+_SOLVE_SCALE = (1.0, math.nan)
 
 
 @dataclass
@@ -123,6 +125,7 @@ class Predictor:
         self._fk_ATk = np.empty((r, m))
         self._fk_K = np.empty((r, r))
         self._fk_Kdiag = self._fk_K.reshape(-1)[:: r + 1]
+        self._fk_KT = self._fk_K.T                 # Fortran-ordered view for LAPACK (K symmetric)
         self._fk_dp = np.empty(r)
         self._fk_dp6 = np.zeros(6)
         self._fk_scatter = np.eye(6)[:, self._rows]   # (6, r): dp_r -> dp
@@ -253,6 +256,7 @@ class Predictor:
             self._have_pose = True
         rows, k, g = self._rows, self._fk_k, self._fk_g
         ATr, ATrT, ATk, K, Kdiag = self._fk_ATr, self._fk_ATrT, self._fk_ATk, self._fk_K, self._fk_Kdiag
+        KT = self._fk_KT
         dp, dp6, scatter, AT = self._fk_dp, self._fk_dp6, self._fk_scatter, self._AT0
         pos0, quat0 = self._pos0, self._quat0
         np.divide(self._ea, ml0, out=k)
@@ -263,7 +267,11 @@ class Predictor:
             np.multiply(ATr, k, out=ATk)
             np.matmul(ATk, ATrT, out=K)               # A^T K A over the solved rows
             np.multiply(Kdiag, damp, out=Kdiag)
-            _solve_into(K, g, out=dp)
+            # dp = K^-1 g in place: LAPACK's Cholesky solve on the preallocated buffers (K is
+            # symmetric, so its transpose is the Fortran-ordered view LAPACK takes without a copy)
+            np.copyto(dp, g)
+            info = _dposv(KT, dp, overwrite_a=1, overwrite_b=1)[2]
+            np.multiply(dp, _SOLVE_SCALE[info != 0], out=dp)
             np.matmul(scatter, dp, out=dp6)
             # r <- r + dp[:3]; q <- q(dp[3:]) q, the rotation vector dp[3:] in the world frame
             dx, dy, dz, wx, wy, wz = dp6.tolist()
