@@ -46,7 +46,7 @@ import numpy as np
 from cablesvc.config.params import ModelParams
 from cablesvc.config.robot import Robot
 from cablesvc.kinematics import inverse_kinematics
-from cablesvc.models.reversal import REVERSAL_DEADBAND  # noqa: F401  (documented default)
+from cablesvc.models.reversal import REVERSAL_DEADBAND
 from cablesvc.models.terms import Signals
 
 __all__ = ["ReducedRecording", "read_reduced", "discover_stream", "wants_stream", "amplitude_stream", "ANALYSIS_RATE", "MAX_GROUPS"]
@@ -107,7 +107,7 @@ def _amp_stream(x, tol, st, out):
         out[i] = st[8]
 
 
-def amplitude_stream(x: np.ndarray, state: Optional[np.ndarray] = None, tol: float = 2e-6
+def amplitude_stream(x: np.ndarray, state: Optional[np.ndarray] = None, tol: float = REVERSAL_DEADBAND
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Reversal amplitude (N, m) of ``x`` (N, m) continuing from ``state`` ((m, 9), None at
     the start): the pieces of a record give exactly :func:`reversal_amplitude` of the whole

@@ -38,7 +38,7 @@ import numpy as np
 
 from cablesvc.models.boucwen import bouc_wen_step_n1, bouc_wen_step_n1_np
 from cablesvc.models.catenary import SAG_NEWTON, irvine_tension
-from cablesvc.models.reversal import reversal_amplitude
+from cablesvc.models.reversal import REVERSAL_DEADBAND, reversal_amplitude
 
 __all__ = [
     "LIBRARY", "Signals", "Term", "Design", "register", "library", "PulleyFriction", "Creep",
@@ -1081,10 +1081,6 @@ class _Reversals:
             self.started = bool(d[prefix + "started"])
 
 
-#: reversal dead-band of the amplitude signal the terms see [m] (:func:`reversal_amplitude`'s default)
-AMPLITUDE_TOL = 2e-6
-
-
 class TermStack:
     """The terms of a parameter file, live: every tick, from the kernel's baseline force f0,
     elongation x, motor length, wrap angle, free length and temperature (lanes, m), the
@@ -1117,7 +1113,7 @@ class TermStack:
         self.origin = None if clock_origin is None else float(clock_origin)
         self.t0: Optional[float] = None
         self.t_prev = 0.0
-        self.rev = _Reversals(lanes, m, AMPLITUDE_TOL)
+        self.rev = _Reversals(lanes, m, REVERSAL_DEADBAND)
         if self.delay is not None:
             tau = np.asarray(tables.get(self.delay.name, {}).get("tau", np.zeros(m)), float).reshape(-1)
             self.tau = np.clip(tau, 0.0, DELAY_WINDOW_S)
