@@ -31,26 +31,13 @@ def zenoh_failure(what: str, where: str, e: BaseException) -> ServiceError:
     return ServiceError(f"cannot {what} ({where}): {str(e).split(' at /')[0]}")
 
 
-def not_yet_rooted() -> tuple[type[BaseException], ...]:
-    """Errors the command line reports as one line whose classes do not derive from
-    :class:`CablesvcError` yet (their areas are being moved under it, issue 19); empty once
-    every one does. Caught next to CablesvcError by ``cablesvc.cli.main`` only."""
-    from cablesvc.recording import RecordingError
-    from cablesvc.service.daemon import StartError
-    from cablesvc.simulate import SimulationError
-    from cablesvc.sources import SourceConfigError
-
-    return tuple(c for c in (RecordingError, SimulationError, SourceConfigError, StartError)
-                 if not issubclass(c, CablesvcError))
-
-
 def run_command(args) -> int:
     """Run the parsed command ``args.func(args)``; a :class:`CablesvcError` becomes one line
     on stderr, ``cablesvc <command>: <message>`` (``bench kernel`` for a benchmark), and its
     exit status."""
     try:
         return int(args.func(args) or 0)
-    except (CablesvcError, *not_yet_rooted()) as e:
+    except CablesvcError as e:
         command = " ".join(c for c in (args.command, getattr(args, "bench", None)) if c)
         print(f"cablesvc {command}: {e}", file=sys.stderr)
         return exit_status(e)
