@@ -715,7 +715,9 @@ class BoucWenHysteresis(Term):
     model_form = True
     name = "boucwen"
     label = "hysteresis missing (Bouc-Wen)"
-    equation = "k_z z + k_x (x - mean x), dz = dx (1 - (beta sgn(z dx) + gamma)|z|)  (000 eqs 1-2)"
+    # the law as the code runs it (the string said (beta sgn(z dx) + gamma), 000's own naming)
+    equation = ("k_z z + k_x (x - mean x), dz = dx (1 - (beta + gamma sgn(z dx)) |z|)  "
+                "(000 eqs 1-2; this term's beta, gamma are 000's gamma, beta)")
     variable = "elongation x [m] (loop)"
     params = ("k_z", "k_x")
     units = ("N/m", "N/m")
