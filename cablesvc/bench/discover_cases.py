@@ -162,7 +162,7 @@ def calibrated_robot(index: int, fleet_seed: int = 0) -> SimRobot:
     variant = draw_variant(k, np.random.default_rng([fleet_seed, index, 41]))
     seed = int(np.random.default_rng([fleet_seed, index, 42]).integers(0, 2 ** 31 - 1))
     ctx = ScenarioContext(geom=geom, rate=RATE, duration=None, rng=np.random.default_rng([seed, 1]),
-                          elastic=_nominal_elastic(geom, home))
+                          elastic=_nominal_elastic(geom))
     plan = hold_sine(ctx, amplitudes=CAL_AMPLITUDES, mode="sequential")
     ik = inverse_kinematics(geom, plan.position, plan.orientation)
     ml = ik.length - plan.elongation
