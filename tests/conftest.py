@@ -46,3 +46,12 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo):
         rep.outcome = "failed"
         rep.longrepr = (f"{item.nodeid} was skipped for missing data ({reason!r}): the data a test "
                         f"needs must ship with the repository, so this test has to run (issue 18)")
+
+
+@pytest.fixture(scope="module")
+def robot():
+    """The IPAnema 3 robot (robots/ipanema3.toml), loaded once per test module: the robot
+    most tests run on. A module about another robot (planar4, a simulated fleet's robot)
+    defines its own ``robot`` fixture, which overrides this one there."""
+    from cablesvc.config import load_robot
+    return load_robot("ipanema3")

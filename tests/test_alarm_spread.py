@@ -19,7 +19,7 @@ from cablesvc.alarms import (
     SpreadDetector,
     load_alarm_config,
 )
-from cablesvc.alarms.spread import _RAISE_SINCE
+from cablesvc.alarms.spread import RAISE_SINCE
 from cablesvc.config import load_robot
 from cablesvc.config.params import default_params
 from cablesvc.kernel import Predictor
@@ -227,7 +227,7 @@ def test_state_round_trip_continues_exactly_and_keeps_the_active_alarm():
     t3, R3 = residuals(rng, 1000.0, 20.0, 1, effect=friction_on_cable0(1, onset=0.5))
     c.update_batch(t3[:1000], R3[:1000])
     st = c.state_dict()
-    st["state"][_RAISE_SINCE, 0] = 1e9
+    st["state"][RAISE_SINCE, 0] = 1e9
     c.load_state_dict(st)
     ev = c.update_batch(t3[1000:], R3[1000:])
     assert [e.action for e in ev] == ["raise"] and ev[0].t - ev[0].since == pytest.approx(2.0, abs=0.01)

@@ -69,8 +69,8 @@ def test_true_forces_balance_and_a_sensor_offset_breaks_the_balance(robot, contr
 def test_prescribed_pose_does_not_balance(robot, control):
     """What the twin does (the pose held where commanded) leaves the truth unbalanced: the
     equilibrium correction is what makes the forces balance."""
-    from cablesvc.bench.discover_cases import _trajectory
-    tr = _trajectory(robot, 17, np.random.default_rng([17, 77]))
+    from cablesvc.bench.discover_cases import draw_trajectory
+    tr = draw_trajectory(robot, 17, np.random.default_rng([17, 77]))
     held = equilibrium_run(robot.geom, robot.variant, [], [], t=tr.t, dt=tr.t[1] - tr.t[0], position=tr.position,
                            orientation=tr.orientation, motor_length=tr.motor_length, temperature=tr.temperature,
                            balance=False)
@@ -127,14 +127,14 @@ def test_case_plan():
 
 
 def test_ool_scoring():
-    from cablesvc.bench.discover import _ool_ok
+    from cablesvc.bench.discover import ool_handled
     from cablesvc.discover.pipeline import Finding
     f = lambda cs: Finding(term="pulley", label="", equation="", variable="", cables=cs, r={}, raw_r={}, params={})
-    assert _ool_ok([], [{"cables": [2]}], [2])
-    assert _ool_ok([f([2])], [], [2, 6])
-    assert not _ool_ok([f([2, 3])], [], [2, 6])          # a term on a cable the effect is not on
-    assert not _ool_ok([f([2]), f([6])], [], [2, 6])     # two terms
-    assert not _ool_ok([], [], [2])                      # nothing reported at all
+    assert ool_handled([], [{"cables": [2]}], [2])
+    assert ool_handled([f([2])], [], [2, 6])
+    assert not ool_handled([f([2, 3])], [], [2, 6])          # a term on a cable the effect is not on
+    assert not ool_handled([f([2]), f([6])], [], [2, 6])     # two terms
+    assert not ool_handled([], [], [2])                      # nothing reported at all
 
 
 def test_ideal_mode_keeps_its_keys():

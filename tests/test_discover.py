@@ -12,7 +12,7 @@ import pytest
 from cablesvc.config.params import load_params
 from cablesvc.discover import Term, discover, library
 from cablesvc.discover.locate import change_points, noise_floor
-from cablesvc.models.terms import _design
+from cablesvc.models.terms import make_design
 from cablesvc.simulate import TruthConfig, effect_from_spec, simulate_recording
 
 ROBOT = "ipanema3"
@@ -149,7 +149,7 @@ class LateStep(Term):
         return [{"t_s": v} for v in np.arange(2.0, float(s.t[-1]), 1.0)]
 
     def design(self, s, c, h):
-        return _design([(s.t >= h["t_s"]).astype(float)], ("s",), ("N",))
+        return make_design([(s.t >= h["t_s"]).astype(float)], ("s",), ("N",))
 
 
 def test_library_is_open_and_locate_finds_the_change_point():

@@ -202,13 +202,13 @@ def test_block_screen_names_a_term_only_where_it_explains_most_of_the_residual()
 def test_exact_signed_rank_p_values_equal_scipys():
     from scipy import stats
 
-    from cablesvc.discover.evidence import _w_p
+    from cablesvc.discover.evidence import signed_rank_test
     rng = np.random.default_rng(3)
     for n in (5, 6, 12, 18, 33, 50):
         for shift in (-0.5, 0.0, 0.7):
             g = rng.standard_normal(n) + shift
-            w, p = _w_p(g)
+            w, p = signed_rank_test(g)
             ref = stats.wilcoxon(g, alternative="greater")
             assert w == ref.statistic and p == pytest.approx(ref.pvalue, rel=1e-12, abs=1e-15)
     g = np.r_[np.ones(4), 2.0, 2.0, -1.0, 3.0]                # ties: scipy's own method
-    assert _w_p(g)[1] == pytest.approx(stats.wilcoxon(g, alternative="greater").pvalue)
+    assert signed_rank_test(g)[1] == pytest.approx(stats.wilcoxon(g, alternative="greater").pvalue)

@@ -10,7 +10,7 @@ import pytest
 from cablesvc.config.robot import load_robot
 from cablesvc.discover import discover, library
 from cablesvc.discover.pipeline import baseline_params, build_signals
-from cablesvc.discover.stream import _Acc, amplitude_stream, discover_stream, read_reduced, reduced_recording
+from cablesvc.discover.stream import BlockAccumulator, amplitude_stream, discover_stream, read_reduced, reduced_recording
 from cablesvc.models.reversal import reversal_amplitude
 from cablesvc.recording import read_recording, write_recording
 from cablesvc.recording.chunks import iter_chunks
@@ -112,7 +112,7 @@ def test_decimation_keeps_the_terms_and_their_parameters(tmp_path):
 
 def test_group_sampling_is_bounded_and_spans_the_recording():
     for n_groups, k in ((5, 16), (60, 16), (360, 16), (1000, 6)):
-        acc = _Acc(10.0, k)
+        acc = BlockAccumulator(10.0, k)
         t = np.arange(0.0, n_groups * 10.0, 0.5)
         for a in range(0, t.size, 97):
             acc.add({"t": t[a:a + 97], "y": t[a:a + 97, None] * np.ones((1, 2))})

@@ -20,8 +20,8 @@ Q0 = np.array([0.0, 0.0, 0.0, 1.0])
 
 
 @pytest.fixture(scope="module")
-def ipanema():
-    g = load_robot("ipanema3").geometry()
+def ipanema(robot):
+    g = robot.geometry()
     L = inverse_kinematics(g, np.zeros((1, 3)), Q0[None]).length[0]
     return g, L
 

@@ -420,14 +420,14 @@ def test_per_tick_path_allocates_nothing(batch, with_lazy):
 def _reference_ik(g, pos, quat):
     """The pulley model of the ik module docstring evaluated directly, as the implementation
     before the per-call optimisation did (allocating, eq 1 rounding): the reference values."""
-    from cablesvc.kinematics.ik_layout import _FOLD_TOL, EPS_SWIVEL, _swivel_reference
+    from cablesvc.kinematics.ik_layout import FOLD_TOL, EPS_SWIVEL, swivel_reference
 
     pulley = np.asarray(g.has_pulley)
     mask = pulley.astype(float)
     r = np.asarray(g.pulley_radius) * mask
     e = np.array(g.pulley_axis, dtype=float)
     e[~pulley] = (0.0, 0.0, 1.0)
-    ref = _swivel_reference(g, e)
+    ref = swivel_reference(g, e)
     s2 = np.cross(e, ref)
     C = np.asarray(g.pulley_center)
     R = quat_to_matrix(quat)
@@ -439,7 +439,7 @@ def _reference_ik(g, pos, quat):
     vx = np.sum(d * xp, axis=-1) - r
     lf = np.sqrt(np.maximum(vx * vx + de * de - r * r, 0.0))
     alpha = np.arctan2(vx, de) + np.arctan2(r, lf)
-    wa = np.maximum(np.mod(alpha + _FOLD_TOL, 2 * np.pi) - _FOLD_TOL, 0.0) * mask
+    wa = np.maximum(np.mod(alpha + FOLD_TOL, 2 * np.pi) - FOLD_TOL, 0.0) * mask
     ca, sa = np.cos(alpha), np.sin(alpha)
     return dict(
         length=wa * r + lf,

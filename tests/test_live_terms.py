@@ -8,7 +8,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cablesvc.config import load_robot
 from cablesvc.config.params import load_params
 from cablesvc.discover import discover
 from cablesvc.discover.pipeline import Discovery, baseline_params, build_signals, split_blocks
@@ -26,11 +25,6 @@ EFFECT = {
     "offset_gain": "offset_gain:0.6@2,7", "amplitude": "viscous:8000@3", "asymmetric": "sag:0.5@6",
     "boucwen": "pulley:0.004@1,4", "baseline": "offset_gain:0.6@2,7",
 }
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot(ROBOT)
 
 
 def _recording(spec: str, seed: int = 5, scenario: str = "trajectory", duration: float = 8.0):

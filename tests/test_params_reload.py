@@ -48,8 +48,8 @@ def rec():
 
 
 @pytest.fixture(scope="module")
-def geom():
-    return load_robot("ipanema3").geometry()
+def geom(robot):
+    return robot.geometry()
 
 
 def _linear(geom):

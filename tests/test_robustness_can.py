@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 from can.interfaces.virtual import VirtualBus
 
-from cablesvc.config import load_robot
 from cablesvc.simulate import simulate_recording
 from cablesvc.sources import TickAssembler, TickInput, encode_tick, load_can_layout, open_source
 
@@ -67,11 +66,6 @@ def adapters(monkeypatch):
     FlakyBus.opens, FlakyBus.failing = 0, True
     SlowBus.opens, SlowBus.instances = 0, []
     yield
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("ipanema3")
 
 
 def _channel() -> str:

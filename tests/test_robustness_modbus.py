@@ -23,18 +23,12 @@ import time
 import numpy as np
 import pytest
 
-from cablesvc.config import load_robot
 from cablesvc.recording import Recording
 from cablesvc.simulate import simulate_recording
 from cablesvc.sources import SourceConfigError, TickInput, load_register_map, open_source
 from cablesvc.netutil import free_tcp_port
 from cablesvc.sources.simulated import ModbusController
 from cablesvc.sources.modbus_source import MAX_REGISTERS_PER_READ
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("ipanema3")
 
 
 @pytest.fixture(scope="module")

@@ -110,11 +110,11 @@ def test_write_input_refuses_seq_outside_int64(tmp_path, seq):
 
 
 def test_write_input_refuses_t_whose_log_time_rounds_past_64_bits(tmp_path):
-    from cablesvc.recording.mcap_writer import _LOG_TIME_MAX_S
+    from cablesvc.recording.mcap_writer import LOG_TIME_MAX_S
 
     with McapRecordingWriter(tmp_path / "t.mcap", "r") as w:
         with pytest.raises(ValueError, match="log_time"):
-            w.write_input(0, _LOG_TIME_MAX_S, [1.0])
+            w.write_input(0, LOG_TIME_MAX_S, [1.0])
         w.write_input(0, 1.8e10, [1.0])
     assert read_mcap(tmp_path / "t.mcap").n_ticks == 1
 

@@ -20,14 +20,8 @@ import can
 import numpy as np
 import pytest
 
-from cablesvc.config import load_robot
 from cablesvc.recording import Recording, write_recording
 from cablesvc.sources import TickInput, TickValidator, encode_tick, open_source
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("ipanema3")
 
 
 def _write(path, t, seq) -> None:

@@ -5,7 +5,6 @@ import json
 import numpy as np
 import pytest
 
-from cablesvc.config import load_robot
 from cablesvc.config.params import default_params
 from cablesvc.kinematics import inverse_kinematics, platform_wrench, structure_matrix
 from cablesvc.models import loop_area, simulate
@@ -35,18 +34,13 @@ def quiet(*effects, **kw):
 
 
 @pytest.fixture(scope="module")
-def ipanema3():
-    return load_robot("ipanema3")
+def hold_base(robot):
+    return simulate_twin(robot, "hold-sine", truth=quiet(), **SHORT_HOLD)
 
 
 @pytest.fixture(scope="module")
-def hold_base(ipanema3):
-    return simulate_twin(ipanema3, "hold-sine", truth=quiet(), **SHORT_HOLD)
-
-
-@pytest.fixture(scope="module")
-def traj_base(ipanema3):
-    return simulate_twin(ipanema3, "trajectory", truth=quiet(), duration=6.0, seed=2)
+def traj_base(robot):
+    return simulate_twin(robot, "trajectory", truth=quiet(), duration=6.0, seed=2)
 
 
 def elongation_of(rec, geom):
@@ -56,10 +50,10 @@ def elongation_of(rec, geom):
 
 # ---- hold scenarios -------------------------------------------------------------------
 
-def test_hold_sine_is_the_base_model_on_the_recorded_elongation(ipanema3):
-    geom = ipanema3.geometry()
+def test_hold_sine_is_the_base_model_on_the_recorded_elongation(robot):
+    geom = robot.geometry()
     amps = [1e-4, 5e-4, 1.5e-3]
-    run = simulate_twin(ipanema3, "hold-sine", truth=quiet(), amplitudes=amps, cycles=2, frequency=1.25,
+    run = simulate_twin(robot, "hold-sine", truth=quiet(), amplitudes=amps, cycles=2, frequency=1.25,
                         settle=0.5, rest=0.2)
     rec = run.recording
     x = elongation_of(rec, geom)
@@ -86,10 +80,10 @@ def test_hold_sine_is_the_base_model_on_the_recorded_elongation(ipanema3):
 
 
 @pytest.mark.parametrize("scenario", ["hold-triangle", "hold-trapezoid"])
-def test_hold_shapes(ipanema3, scenario):
-    run = simulate_twin(ipanema3, scenario, truth=quiet(), amplitudes=[2.5e-4, 1e-3], cycles=2, frequency=2.0,
+def test_hold_shapes(robot, scenario):
+    run = simulate_twin(robot, scenario, truth=quiet(), amplitudes=[2.5e-4, 1e-3], cycles=2, frequency=2.0,
                         settle=0.3, rest=0.1, mode="sequential", cables=[2])
-    x = elongation_of(run.recording, ipanema3.geometry())
+    x = elongation_of(run.recording, robot.geometry())
     n = run.plan.info["samples_per_cycle"]
     for b in run.plan.info["blocks"]:
         s, e = b["start"], b["stop"]
@@ -107,10 +101,10 @@ def test_hold_shapes(ipanema3, scenario):
     assert np.abs(np.delete(run.recording.force, 2, axis=1) - 60.0).max() < 0.05
 
 
-def test_hysteresis_in_default_truth_and_not_in_linear_base(ipanema3):
+def test_hysteresis_in_default_truth_and_not_in_linear_base(robot):
     areas = {}
     for base in ("amplitude", "linear"):
-        run = simulate_twin(ipanema3, "hold-sine", truth=quiet(base_model=base), **SHORT_HOLD)
+        run = simulate_twin(robot, "hold-sine", truth=quiet(base_model=base), **SHORT_HOLD)
         b = run.plan.info["blocks"][0]
         n = run.plan.info["samples_per_cycle"]
         sl = slice(b["stop"] - n, b["stop"])           # last full cycle
@@ -124,26 +118,26 @@ def test_hysteresis_in_default_truth_and_not_in_linear_base(ipanema3):
 # ---- effects: right cables, visible, off at 0 ------------------------------------------
 
 @pytest.mark.parametrize("name", sorted(EFFECTS))
-def test_effect_acts_on_exactly_the_chosen_cables(ipanema3, hold_base, name):
+def test_effect_acts_on_exactly_the_chosen_cables(robot, hold_base, name):
     chosen = [1, 6]
     F0 = hold_base.recording.force
-    run = simulate_twin(ipanema3, "hold-sine", truth=quiet(EFFECTS[name](cables=chosen)), **SHORT_HOLD)
+    run = simulate_twin(robot, "hold-sine", truth=quiet(EFFECTS[name](cables=chosen)), **SHORT_HOLD)
     d = run.recording.force - F0
     rms = np.sqrt(np.mean(d ** 2, axis=0))
     assert np.all(rms[chosen] > 4 * NOISE), (name, rms)
     others = [i for i in range(8) if i not in chosen]
     np.testing.assert_array_equal(d[:, others], 0.0)
     # magnitude 0 switches it off entirely
-    off = simulate_twin(ipanema3, "hold-sine", truth=quiet(EFFECTS[name](magnitude=0.0, cables=chosen)),
+    off = simulate_twin(robot, "hold-sine", truth=quiet(EFFECTS[name](magnitude=0.0, cables=chosen)),
                         **SHORT_HOLD)
     np.testing.assert_array_equal(off.recording.force, F0)
     truth = json.loads(run.recording.metadata["truth"])
     assert [(e["name"], e["cables"]) for e in truth["effects"]] == [(name, chosen)]
 
 
-def test_deadtime_shifts_the_force_by_tau(ipanema3, hold_base):
+def test_deadtime_shifts_the_force_by_tau(robot, hold_base):
     tau = 0.0375  # 37.5 ticks
-    run = simulate_twin(ipanema3, "hold-sine", truth=quiet(effect_from_spec(f"deadtime:{tau}@0")), **SHORT_HOLD)
+    run = simulate_twin(robot, "hold-sine", truth=quiet(effect_from_spec(f"deadtime:{tau}@0")), **SHORT_HOLD)
     b = hold_base.plan.info["blocks"][0]
     s, e = b["start"], b["stop"] - 200
     f0 = hold_base.recording.force[:, 0]
@@ -155,17 +149,17 @@ def test_deadtime_shifts_the_force_by_tau(ipanema3, hold_base):
     np.testing.assert_array_equal(run.recording.force[:, 1:], hold_base.recording.force[:, 1:])
 
 
-def test_viscous_adds_cv_times_rate(ipanema3, hold_base):
+def test_viscous_adds_cv_times_rate(robot, hold_base):
     cv = 800.0
-    run = simulate_twin(ipanema3, "hold-sine", truth=quiet(effect_from_spec(f"viscous:{cv}")), **SHORT_HOLD)
-    x = elongation_of(run.recording, ipanema3.geometry())
+    run = simulate_twin(robot, "hold-sine", truth=quiet(effect_from_spec(f"viscous:{cv}")), **SHORT_HOLD)
+    x = elongation_of(run.recording, robot.geometry())
     v = np.vstack([np.zeros((1, 8)), np.diff(x, axis=0) * RATE])
     np.testing.assert_allclose(run.recording.force - hold_base.recording.force, cv * v, rtol=0, atol=1e-8)
 
 
-def test_temperature_residual_is_cT_dT_times_force(ipanema3, hold_base):
+def test_temperature_residual_is_cT_dT_times_force(robot, hold_base):
     cT = 0.02
-    run = simulate_twin(ipanema3, "hold-sine", truth=quiet(effect_from_spec(f"temperature:{cT}")), **SHORT_HOLD)
+    run = simulate_twin(robot, "hold-sine", truth=quiet(effect_from_spec(f"temperature:{cT}")), **SHORT_HOLD)
     T = run.recording.temperature
     assert np.ptp(T) > 1.0 and abs(T.mean() - 21.0) < 3.0        # a few K around 21 C
     np.testing.assert_array_equal(T, hold_base.recording.temperature)  # channel is there either way
@@ -173,20 +167,20 @@ def test_temperature_residual_is_cT_dT_times_force(ipanema3, hold_base):
     np.testing.assert_allclose(run.recording.force - hold_base.recording.force, expected, rtol=1e-9, atol=1e-9)
 
 
-def test_offset_gain_is_exact(ipanema3, hold_base):
+def test_offset_gain_is_exact(robot, hold_base):
     o = 3.0
     e = effect_from_spec(f"offset_gain:{o}@4")
     assert isinstance(e, OffsetGain) and e.gain == pytest.approx(o / 600.0)
-    run = simulate_twin(ipanema3, "hold-sine", truth=quiet(e), **SHORT_HOLD)
+    run = simulate_twin(robot, "hold-sine", truth=quiet(e), **SHORT_HOLD)
     F0 = hold_base.recording.force
     np.testing.assert_allclose(run.recording.force[:, 4], (1 + o / 600.0) * F0[:, 4] + o, rtol=1e-12, atol=1e-12)
     # a sensor effect: the true cable force is unchanged
     np.testing.assert_array_equal(run.output.force, hold_base.output.force)
 
 
-def test_creep_is_a_monotone_drift_reaching_its_magnitude(ipanema3, hold_base):
+def test_creep_is_a_monotone_drift_reaching_its_magnitude(robot, hold_base):
     D = 1.5
-    run = simulate_twin(ipanema3, "hold-sine", truth=quiet(Creep(magnitude=D, cables=(3,))), **SHORT_HOLD)
+    run = simulate_twin(robot, "hold-sine", truth=quiet(Creep(magnitude=D, cables=(3,))), **SHORT_HOLD)
     r = run.recording.force[:, 3] - hold_base.recording.force[:, 3]
     assert r[0] == 0.0
     assert np.all(np.diff(r) <= 1e-12)
@@ -196,14 +190,14 @@ def test_creep_is_a_monotone_drift_reaching_its_magnitude(ipanema3, hold_base):
     assert -r[h] > r[h] - r[-1]
 
 
-def test_sag_matters_only_at_low_tension(ipanema3):
-    geom = ipanema3.geometry()
+def test_sag_matters_only_at_low_tension(robot):
+    geom = robot.geometry()
     w = 0.2
     rms = {}
     for pre in (60.0, 600.0):
         kw = dict(SHORT_HOLD, pretension=pre)
-        base = simulate_twin(ipanema3, "hold-sine", truth=quiet(), **kw)
-        run = simulate_twin(ipanema3, "hold-sine", truth=quiet(effect_from_spec(f"sag:{w}")), **kw)
+        base = simulate_twin(robot, "hold-sine", truth=quiet(), **kw)
+        run = simulate_twin(robot, "hold-sine", truth=quiet(effect_from_spec(f"sag:{w}")), **kw)
         r = run.recording.force - base.recording.force
         rms[pre] = np.sqrt(np.mean(r ** 2))
         # sag lengthens the hanging cable beyond its chord: tension rises by k s(F)
@@ -215,9 +209,9 @@ def test_sag_matters_only_at_low_tension(ipanema3):
     assert rms[600.0] < 0.02 * rms[60.0]
 
 
-def test_pulley_residual_follows_wrap_angle_and_direction(ipanema3, traj_base):
+def test_pulley_residual_follows_wrap_angle_and_direction(robot, traj_base):
     mu = 0.02
-    run = simulate_twin(ipanema3, "trajectory", truth=quiet(Pulley(magnitude=mu)), duration=6.0, seed=2)
+    run = simulate_twin(robot, "trajectory", truth=quiet(Pulley(magnitude=mu)), duration=6.0, seed=2)
     e = run.truth.effects[0]
     F0 = traj_base.recording.force
     r = run.recording.force - F0
@@ -245,12 +239,12 @@ def test_pulley_needs_pulleys():
 
 # ---- trajectory -------------------------------------------------------------------------
 
-def test_trajectory_tensions_and_recording_roundtrip(ipanema3, tmp_path):
-    geom = ipanema3.geometry()
+def test_trajectory_tensions_and_recording_roundtrip(robot, tmp_path):
+    geom = robot.geometry()
     out = tmp_path / "traj.mcap"
-    rec = simulate_recording(ipanema3, "trajectory", out, duration=3.0, seed=4,
+    rec = simulate_recording(robot, "trajectory", out, duration=3.0, seed=4,
                              truth=TruthConfig(effects=[effect_from_spec("pulley:0.02@2,5")]))
-    run = simulate_twin(ipanema3, "trajectory", duration=3.0, seed=4,
+    run = simulate_twin(robot, "trajectory", duration=3.0, seed=4,
                         truth=TruthConfig(effects=[effect_from_spec("pulley:0.02@2,5")]))
     assert run.recording.equals(rec)
     assert np.linalg.norm(np.ptp(rec.position, axis=0)) > 0.1     # it moves
@@ -295,17 +289,17 @@ def test_trajectory_planar_robot():
 
 # ---- seeds, specs, errors -----------------------------------------------------------------
 
-def test_reproducible_with_seed(ipanema3, tmp_path):
-    a = simulate_recording(ipanema3, "trajectory", duration=1.0, seed=5)
-    b = simulate_recording(ipanema3, "trajectory", tmp_path / "b.csv", duration=1.0, seed=5)
-    c = simulate_recording(ipanema3, "trajectory", duration=1.0, seed=6)
+def test_reproducible_with_seed(robot, tmp_path):
+    a = simulate_recording(robot, "trajectory", duration=1.0, seed=5)
+    b = simulate_recording(robot, "trajectory", tmp_path / "b.csv", duration=1.0, seed=5)
+    c = simulate_recording(robot, "trajectory", duration=1.0, seed=6)
     assert a.equals(b)
     assert read_recording(tmp_path / "b.csv").equals(a)
     assert not np.array_equal(a.force, c.force)
     assert not np.array_equal(a.temperature, c.temperature)
     assert not np.array_equal(a.motor_length, c.motor_length)
     # noise only: same scenario, other noise seed
-    d = simulate_recording(ipanema3, "trajectory", duration=1.0, seed=5, truth=TruthConfig(seed=99))
+    d = simulate_recording(robot, "trajectory", duration=1.0, seed=5, truth=TruthConfig(seed=99))
     np.testing.assert_array_equal(d.motor_length, a.motor_length)
     assert 0.05 < np.std(d.force - a.force) < 0.2
 
@@ -328,23 +322,23 @@ def test_effect_specs():
     assert len(lines) == len(EFFECTS) and all(any(l.startswith(n) for l in lines) for n in EFFECTS)
 
 
-def test_bad_options_are_reported(ipanema3):
+def test_bad_options_are_reported(robot):
     with pytest.raises(SimulationError, match="unknown option.*amplitude"):
-        simulate_twin(ipanema3, "hold-sine", amplitude=[1e-3])
+        simulate_twin(robot, "hold-sine", amplitude=[1e-3])
     with pytest.raises(SimulationError, match="unknown scenario"):
-        simulate_twin(ipanema3, "wobble")
+        simulate_twin(robot, "wobble")
     with pytest.raises(SimulationError, match="out of range"):
-        simulate_twin(ipanema3, "hold-sine", truth=quiet(effect_from_spec("viscous@8")), **SHORT_HOLD)
+        simulate_twin(robot, "hold-sine", truth=quiet(effect_from_spec("viscous@8")), **SHORT_HOLD)
     with pytest.raises(SimulationError, match="cables"):
-        simulate_twin(ipanema3, "hold-sine", cables=[9], **SHORT_HOLD)
+        simulate_twin(robot, "hold-sine", cables=[9], **SHORT_HOLD)
     with pytest.raises(SimulationError, match=r"\.mcap or \.csv"):
-        simulate_recording(ipanema3, "hold-sine", "rec.txt")
+        simulate_recording(robot, "hold-sine", "rec.txt")
     assert set(SCENARIOS) == {"hold-sine", "hold-triangle", "hold-trapezoid", "trajectory"}
     assert all(fn.__doc__ for fn in SCENARIOS.values())
 
 
-def test_hold_duration_repeats_and_cuts(ipanema3):
-    run = simulate_twin(ipanema3, "hold-sine", truth=quiet(), duration=4.5, **SHORT_HOLD)
+def test_hold_duration_repeats_and_cuts(robot):
+    run = simulate_twin(robot, "hold-sine", truth=quiet(), duration=4.5, **SHORT_HOLD)
     rec = run.recording
     assert rec.n_ticks == 4500 and rec.t[-1] == pytest.approx(4.499)
     assert len(run.plan.info["blocks"]) >= 2                 # one pass is 2.0 s

@@ -92,7 +92,7 @@ class DriftConfig(BaseModel):
 # ---- kernel layout -----------------------------------------------------------------------
 # state rows (NS, m)
 (_BASE, _READY, _W_T0, _W_SUM, _W_N, _T_LAST, _EWMA, _CU, _CL, _CU_T0, _CL_T0, _CU_SZ, _CU_ST,
- _CL_SZ, _CL_ST, _ACTIVE, _SIDE, _RAISE_SINCE, _CLEAR_SINCE, _SINCE, _OFFSET) = range(21)
+ _CL_SZ, _CL_ST, _ACTIVE, _SIDE, RAISE_SINCE, _CLEAR_SINCE, _SINCE, _OFFSET) = range(21)
 _NS = 21
 _STATE_NAMES = ("baseline", "ready", "warmup_t0", "warmup_sum", "warmup_n", "t_last", "ewma", "cusum_up",
                 "cusum_down", "cusum_up_t0", "cusum_down_t0", "cusum_up_sum_z", "cusum_up_sum_t",
@@ -128,7 +128,7 @@ def _start(S, i, t, base):
     S[_T_LAST, i] = t
     S[_EWMA, i] = 0.0
     _restart_cusum(S, i, t)
-    S[_RAISE_SINCE, i] = _NAN
+    S[RAISE_SINCE, i] = _NAN
     S[_CLEAR_SINCE, i] = _NAN
 
 
@@ -181,9 +181,9 @@ def _drift_sample(S, P, t, r, i, E, ne, row):
     if S[_ACTIVE, i] == 0.0:
         if S[_CU, i] > h or S[_CL, i] > h:
             # not pending (NaN), or the clock went back: (re)start the timer
-            if S[_RAISE_SINCE, i] != S[_RAISE_SINCE, i] or t < S[_RAISE_SINCE, i]:
-                S[_RAISE_SINCE, i] = t
-            if t - S[_RAISE_SINCE, i] >= P[_P_RAISE_HOLD]:
+            if S[RAISE_SINCE, i] != S[RAISE_SINCE, i] or t < S[RAISE_SINCE, i]:
+                S[RAISE_SINCE, i] = t
+            if t - S[RAISE_SINCE, i] >= P[_P_RAISE_HOLD]:
                 if S[_CU, i] >= S[_CL, i]:
                     side = 1.0
                     since = S[_CU_T0, i]
@@ -200,7 +200,7 @@ def _drift_sample(S, P, t, r, i, E, ne, row):
                 S[_SIDE, i] = side
                 S[_SINCE, i] = since
                 S[_OFFSET, i] = offset
-                S[_RAISE_SINCE, i] = _NAN
+                S[RAISE_SINCE, i] = _NAN
                 S[_CLEAR_SINCE, i] = _NAN
                 E[ne, _E_ROW] = row
                 E[ne, _E_CABLE] = i
@@ -212,7 +212,7 @@ def _drift_sample(S, P, t, r, i, E, ne, row):
                 E[ne, _E_BASE] = S[_BASE, i]
                 ne += 1
         else:
-            S[_RAISE_SINCE, i] = _NAN
+            S[RAISE_SINCE, i] = _NAN
     else:
         if abs(S[_EWMA, i]) < P[_P_CLEAR]:
             # not pending (NaN), or the clock went back: (re)start the timer
@@ -278,7 +278,7 @@ class DriftDetector(ResidualDetector):
         idx = slice(None) if cables is None else np.asarray(list(cables), dtype=int)
         S = self._S
         S[:, idx] = 0.0
-        for row in (_BASE, _W_T0, _T_LAST, _CU_T0, _CL_T0, _RAISE_SINCE, _CLEAR_SINCE, _SINCE, _OFFSET):
+        for row in (_BASE, _W_T0, _T_LAST, _CU_T0, _CL_T0, RAISE_SINCE, _CLEAR_SINCE, _SINCE, _OFFSET):
             S[row, idx] = np.nan
 
     def set_baseline(self, baseline_n) -> None:
@@ -344,7 +344,7 @@ class DriftDetector(ResidualDetector):
         S = self._S
         S[_ACTIVE] = 0.0
         S[_SIDE] = 0.0
-        for row in (_RAISE_SINCE, _CLEAR_SINCE, _SINCE, _OFFSET):
+        for row in (RAISE_SINCE, _CLEAR_SINCE, _SINCE, _OFFSET):
             S[row] = np.nan
 
     def describe_state(self) -> dict[str, list[float]]:

@@ -188,9 +188,9 @@ class AlarmManager:
 
         if not math.isfinite(delta) or delta == 0.0:
             return
-        for det, rows in ((self.drift, (drift._W_T0, drift._T_LAST, drift._CU_T0, drift._CL_T0, drift._RAISE_SINCE,
+        for det, rows in ((self.drift, (drift._W_T0, drift._T_LAST, drift._CU_T0, drift._CL_T0, drift.RAISE_SINCE,
                                         drift._CLEAR_SINCE, drift._SINCE)),
-                          (self.spread, (spread._W_T0, spread._T_LAST, spread._RAISE_SINCE, spread._CLEAR_SINCE,
+                          (self.spread, (spread._W_T0, spread._T_LAST, spread.RAISE_SINCE, spread._CLEAR_SINCE,
                                          spread._SINCE))):
             det._S[list(rows)] += delta
         self.state.rebase_time(delta)

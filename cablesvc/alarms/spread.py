@@ -63,7 +63,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from cablesvc.alarms import SPREAD_SUGGESTED_ACTION, AlarmEvent, _jit, _jit_inline
 from cablesvc.alarms.residual import (RUN_SIGNATURE, STEP_SIGNATURE, ResidualDetector, _ewma_gain, _sample_dt,
                                       block_samples, tick_samples)
-from cablesvc.alarms.state import _ACTIVE, _CLEAR_SINCE, _RAISE_SINCE, _SINCE, _hold
+from cablesvc.alarms.state import _ACTIVE, _CLEAR_SINCE, RAISE_SINCE, _SINCE, _hold
 
 __all__ = ["SpreadConfig", "SpreadDetector"]
 
@@ -99,10 +99,10 @@ class SpreadConfig(BaseModel):
 
 # ---- kernel layout -----------------------------------------------------------------------
 # state rows (NS, m): the hold-timer rows of cablesvc.alarms.state first, then ours
-_R0 = max(_ACTIVE, _RAISE_SINCE, _CLEAR_SINCE, _SINCE) + 1
+_R0 = max(_ACTIVE, RAISE_SINCE, _CLEAR_SINCE, _SINCE) + 1
 (_READY, _W_T0, _T_LAST, _R_PREV, _MEAN, _VAR, _FLOOR) = range(_R0, _R0 + 7)
 _NS = _R0 + 7
-_STATE_NAMES = {_ACTIVE: "active", _RAISE_SINCE: "raise_since", _CLEAR_SINCE: "clear_since", _SINCE: "since",
+_STATE_NAMES = {_ACTIVE: "active", RAISE_SINCE: "raise_since", _CLEAR_SINCE: "clear_since", _SINCE: "since",
                 _READY: "ready", _W_T0: "warmup_t0", _T_LAST: "t_last", _R_PREV: "r_prev", _MEAN: "mean",
                 _VAR: "spread_sq", _FLOOR: "floor_sq"}
 # parameters
@@ -200,7 +200,7 @@ class SpreadDetector(ResidualDetector):
         idx = slice(None) if cables is None else np.asarray(list(cables), dtype=int)
         S = self._S
         S[:, idx] = 0.0
-        for row in (_RAISE_SINCE, _CLEAR_SINCE, _SINCE, _W_T0, _T_LAST, _R_PREV, _MEAN):
+        for row in (RAISE_SINCE, _CLEAR_SINCE, _SINCE, _W_T0, _T_LAST, _R_PREV, _MEAN):
             S[row, idx] = np.nan
 
     # -- read-outs ---------------------------------------------------------------------------
@@ -254,7 +254,7 @@ class SpreadDetector(ResidualDetector):
         (for a restored state whose detector is disabled in this config). No clear event."""
         S = self._S
         S[_ACTIVE] = 0.0
-        for row in (_RAISE_SINCE, _CLEAR_SINCE, _SINCE):
+        for row in (RAISE_SINCE, _CLEAR_SINCE, _SINCE):
             S[row] = np.nan
 
     def describe_state(self) -> dict[str, list[float]]:

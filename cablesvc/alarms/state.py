@@ -94,7 +94,7 @@ class InputConfig(BaseModel):
 
 # ---- kernel --------------------------------------------------------------------------------
 # channel state rows (4, C), C = 3 m + 1 channels: slack[m], over_limit[m], amplitude[m], wrench
-_ACTIVE, _RAISE_SINCE, _CLEAR_SINCE, _SINCE = range(4)
+_ACTIVE, RAISE_SINCE, _CLEAR_SINCE, _SINCE = range(4)
 _KINDS = ("slack", "over_limit", "amplitude_range", "wrench_residual")
 # parameters
 (_P_SLACK, _P_SLACK_RH, _P_SLACK_CH, _P_SLACK_MARGIN,
@@ -117,16 +117,16 @@ def _hold(ST, c, t, raise_cond, clear_cond, raise_hold, clear_hold):
     if ST[_ACTIVE, c] == 0.0:
         if raise_cond:
             # not pending (NaN), or the clock went back: (re)start the timer
-            if ST[_RAISE_SINCE, c] != ST[_RAISE_SINCE, c] or t < ST[_RAISE_SINCE, c]:
-                ST[_RAISE_SINCE, c] = t
-            if t - ST[_RAISE_SINCE, c] >= raise_hold:
+            if ST[RAISE_SINCE, c] != ST[RAISE_SINCE, c] or t < ST[RAISE_SINCE, c]:
+                ST[RAISE_SINCE, c] = t
+            if t - ST[RAISE_SINCE, c] >= raise_hold:
                 ST[_ACTIVE, c] = 1.0
-                ST[_SINCE, c] = ST[_RAISE_SINCE, c]
-                ST[_RAISE_SINCE, c] = math.nan
+                ST[_SINCE, c] = ST[RAISE_SINCE, c]
+                ST[RAISE_SINCE, c] = math.nan
                 ST[_CLEAR_SINCE, c] = math.nan
                 return 1
         else:
-            ST[_RAISE_SINCE, c] = math.nan
+            ST[RAISE_SINCE, c] = math.nan
     else:
         if clear_cond:
             # not pending (NaN), or the clock went back: (re)start the timer
@@ -329,7 +329,7 @@ class StateAlarms:
     def rebase_time(self, delta: float) -> None:
         """Move the restored timers (pending raise / clear, active since) by ``delta`` [s]
         into the current session's time base (see AlarmManager.rebase_time)."""
-        self._ST[_RAISE_SINCE:] += delta
+        self._ST[RAISE_SINCE:] += delta
 
     def enabled(self, kind: str) -> bool:
         """Whether alarm ``kind`` (one of slack, over_limit, amplitude_range,
@@ -348,7 +348,7 @@ class StateAlarms:
             if not self.enabled(kind):
                 ch = slice(k * m, k * m + (1 if kind == "wrench_residual" else m))
                 self._ST[_ACTIVE, ch] = 0.0
-                self._ST[_RAISE_SINCE:, ch] = np.nan
+                self._ST[RAISE_SINCE:, ch] = np.nan
 
 
 class InputWatch:

@@ -189,7 +189,7 @@ def run_bench(cases: int = 40, seed: int = 0, progress: Optional[Any] = None) ->
     }
 
 
-def _ool_ok(findings: list[Any], unexplained: list[Any], cables: list[int]) -> bool:
+def ool_handled(findings: list[Any], unexplained: list[Any], cables: list[int]) -> bool:
     """An out-of-library case is handled: an unexplained residual is reported, or exactly
     one term is named and only on the effect's cables."""
     if unexplained:
@@ -218,7 +218,7 @@ def _realistic_row(spec: Any, seed: int) -> dict[str, Any]:
     truth = sorted(spec.names)
     affected = case.truth["cables"]
     red = d.reduction(affected) if affected else None
-    ok = _ool_ok(findings, unexplained, affected) if spec.kind == "ool" else named == truth
+    ok = ool_handled(findings, unexplained, affected) if spec.kind == "ool" else named == truth
     rb = np.asarray(getattr(d, "rmse_before", []), float)
     ra = np.asarray(getattr(d, "rmse_after", []), float)
     after = float(np.sqrt(np.mean(ra[affected] ** 2)) / RN) if affected and ra.size else None

@@ -222,7 +222,7 @@ class _Traj:
     params: dict[str, Any]
 
 
-def _trajectory(sr: SimRobot, seed: int, rng: np.random.Generator) -> _Traj:
+def draw_trajectory(sr: SimRobot, seed: int, rng: np.random.Generator) -> _Traj:
     geom = sr.geom
     ctx = ScenarioContext(geom=geom, rate=RATE, duration=DURATION, rng=np.random.default_rng([seed, 1]),
                           elastic=_nominal_elastic(geom))
@@ -308,7 +308,7 @@ def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Option
     t1 = time.perf_counter()
     geom = sr.geom
     m = geom.n_cables
-    tr = _trajectory(sr, seed, rng)
+    tr = draw_trajectory(sr, seed, rng)
     base = _run(sr, tr, [])
     effects, rms, mags = [], {}, {}
     for name in names:

@@ -33,7 +33,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-__all__ = ["long_recording", "run_discover_scale", "main"]
+__all__ = ["add_parser", "cache_path", "cmd_discover_scale", "long_recording", "run_discover_scale"]
 
 ROBOT = "ipanema3"
 RATE = 1000.0

@@ -73,7 +73,7 @@ def _signed_rank_counts(n: int) -> np.ndarray:
     return c
 
 
-def _w_p(g: np.ndarray) -> tuple[float, float]:
+def signed_rank_test(g: np.ndarray) -> tuple[float, float]:
     """One-sided Wilcoxon signed-rank test of a location of g > 0 (block gains of very
     unequal size: a term may explain much in some blocks and little in others): (W, p).
     Exact for up to 50 blocks without ties or zeros (the null distribution of W+ counted
@@ -116,7 +116,7 @@ def block_gain_test(e0: list[np.ndarray], e1: list[np.ndarray], noise: float) ->
     var = max(noise, 1e-12) ** 2
     g = np.array([float(np.mean(a * a - b * b)) / var for a, b in zip(e0, e1)])
     b0 = np.array([float(np.mean(a * a)) / var for a in e0])
-    t, p = _w_p(g)
+    t, p = signed_rank_test(g)
     gain = float(np.mean(g)) if g.size else 0.0
     before = float(np.mean(b0)) if b0.size else 0.0
     return {"gain": gain, "t": t, "p": p, "blocks": int(g.size),
@@ -130,7 +130,7 @@ def excess_test(e: list[np.ndarray], noise: float, floor: float) -> dict[str, fl
     one-sided Wilcoxon signed-rank test. Returns {"excess": mean(e^2)/noise^2 - 1, "t", "p"}."""
     var = max(noise, 1e-12) ** 2
     x = np.array([float(np.mean(a * a)) / var - 1.0 for a in e])
-    t, p = _w_p(x - floor)
+    t, p = signed_rank_test(x - floor)
     return {"excess": float(np.mean(x)) if x.size else 0.0, "t": t, "p": p, "blocks": int(x.size)}
 
 

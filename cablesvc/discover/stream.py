@@ -140,7 +140,7 @@ class ReducedRecording:
     info: dict[str, Any] = field(default_factory=dict)
 
 
-class _Acc:
+class BlockAccumulator:
     """Keeps the decimated ticks of the kept groups (stride doubling, see the module)."""
 
     def __init__(self, group_s: float, max_groups: int):
@@ -237,7 +237,7 @@ class _Decimator:
             yield dec
 
 
-def _reduction_info(src: "_Decimator", acc: _Acc, groups: list[int], analysis_ticks: int, block: float,
+def _reduction_info(src: "_Decimator", acc: BlockAccumulator, groups: list[int], analysis_ticks: int, block: float,
                     max_groups: int, t_start: float) -> dict[str, Any]:
     """What a reduction read and kept (the ``stream`` entry of reports and parameter files)."""
     return {"t0": src.t0, "ticks": src.ticks, "rate_hz": 1.0 / src.raw_dt,
@@ -260,7 +260,7 @@ def read_reduced(path: Any, robot: Robot, params: ModelParams, *, rate: float = 
     model = params.build(m, 1)
     state = None
     amp_state = None
-    acc = _Acc(4.0 * block, max_groups)
+    acc = BlockAccumulator(4.0 * block, max_groups)
     last: Optional[dict[str, np.ndarray]] = None      # previous decimated tick: t, x, ml
     src = _Decimator(path, m, rate, chunk_ticks, DiscoveryError)
     for dec in src:
@@ -376,7 +376,7 @@ def reduced_recording(path: Any, robot: Robot, *, rate: float = ANALYSIS_RATE, b
 
     t_start = time.perf_counter()
     m = robot.geometry().n_cables
-    acc = _Acc(4.0 * block, max_groups)
+    acc = BlockAccumulator(4.0 * block, max_groups)
     src = _Decimator(path, m, rate, chunk_ticks, _Fail)
     for dec in src:
         acc.add(dec)

@@ -21,7 +21,7 @@ __all__ = ["EPS_SWIVEL", "Layout", "cable_constants", "declare_layout", "fill_co
 #: m; size of the fixed reference direction added to d_perp before normalising.
 EPS_SWIVEL = 1e-12
 #: rad; round-off tolerance of the wrap-angle fold into [0, 2 pi).
-_FOLD_TOL = 1e-9
+FOLD_TOL = 1e-9
 _TWO_PI = 2.0 * np.pi
 #: m; added to the copy of d2 used for |d_perp + EPS_SWIVEL ref| (so that norm is never 0;
 #: the same guard as adding 1e-300 to its square).
@@ -30,7 +30,7 @@ _NORM_GUARD = 1e-150
 _MONOMIALS = ((0, 0), (1, 1), (2, 2), (3, 3), (0, 1), (0, 2), (1, 2), (0, 3), (1, 3), (2, 3))
 
 
-def _swivel_reference(geom: RobotGeometry, e: np.ndarray) -> np.ndarray:
+def swivel_reference(geom: RobotGeometry, e: np.ndarray) -> np.ndarray:
     """Fixed unit reference direction perpendicular to e per cable (unitless): the direction
     from the pulley entry point toward the centroid of the frame anchors, projected
     perpendicular to e; if that is degenerate, the coordinate axis least aligned with e,
@@ -151,7 +151,7 @@ def cable_constants(geom: RobotGeometry) -> SimpleNamespace:
     # the local basis must be orthonormal; robot files give unit axes within 1e-6
     # (exactly for the shipped robots, where this division changes nothing)
     e /= np.linalg.norm(e, axis=1, keepdims=True)
-    ref = _swivel_reference(geom, e)
+    ref = swivel_reference(geom, e)
     s2 = np.cross(e, ref)
     P = np.eye(3)[None] - e[:, :, None] * e[:, None, :]  # (m,3,3) projector off e
     mg = np.asarray(geom.gravity, dtype=f8) * float(geom.mass)
@@ -214,8 +214,8 @@ def fill_constants(L: Layout, c: SimpleNamespace) -> None:
     M[o["one"] : o["one"] + N] = 1.0
     M[L.prow("w_r", 0)] = per_slot(r)
     M[L.prow("w_vx", 1)] = per_slot(r)
-    M[L.row("tol")] = _FOLD_TOL
-    M[L.row("per")] = per_slot(np.where(pulley, _TWO_PI, _FOLD_TOL))
+    M[L.row("tol")] = FOLD_TOL
+    M[L.row("per")] = per_slot(np.where(pulley, _TWO_PI, FOLD_TOL))
     M[L.row("mask")] = per_slot(mask)
     M[L.row("ones")] = 1.0
     M[L.prow("bl", 0)] = 1.0

@@ -155,7 +155,7 @@ class Design:
                       refs=self.refs)
 
 
-def _design(cols: list[np.ndarray], names, units, lower=None, upper=None, fixed=None,
+def make_design(cols: list[np.ndarray], names, units, lower=None, upper=None, fixed=None,
             refs: Optional[dict[str, float]] = None) -> Design:
     n = len(cols)
     X = np.column_stack(cols) if cols else np.zeros((0, 0))
@@ -289,7 +289,7 @@ class Term:
         if self.has_fixed:
             fx = np.empty(s.n)
             self.fixed_part(g, R, h, fx)
-        return _design(list(X), self.params, self.units, lower=self.lower, fixed=fx, refs=R)
+        return make_design(list(X), self.params, self.units, lower=self.lower, fixed=fx, refs=R)
 
     def live(self, table: dict[str, np.ndarray], lanes: int, m: int) -> "LiveTerm":
         """The live form over (lanes, m) from the parameter file's table (per cable arrays
@@ -674,7 +674,7 @@ class DeadTime(Term):
     def design(self, s, c, h):
         f = s.f0[:, c]
         shifted = np.interp(s.t - h["tau"], s.t, f)
-        return _design([], (), (), fixed=shifted - f)
+        return make_design([], (), (), fixed=shifted - f)
 
     def evidence(self, s, c, h):
         return -np.gradient(s.f0[:, c], s.t)
@@ -746,7 +746,7 @@ class BoucWenHysteresis(Term):
         R = self.refs(s, c, h)
         X = np.empty((2, s.n))
         self.law(bouc_wen_z(s.x[:, c], h["beta"], h["gamma"]), s.x[:, c], R["x_mean"], X)
-        return _design(list(X), self.params, self.units, refs=R)
+        return make_design(list(X), self.params, self.units, refs=R)
 
     def live(self, table, lanes, m):
         return _BoucWenLive(self, table, lanes, m)

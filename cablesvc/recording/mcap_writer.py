@@ -50,7 +50,7 @@ from .schemas import (
 #: Default chunk size (uncompressed bytes). At 1 kHz with 8 cables (~300 B per tick) a chunk
 #: fills in about 0.9 s, which bounds what a kill -9 loses when nobody calls ``flush()``.
 DEFAULT_CHUNK_SIZE = 256 * 1024
-_LOG_TIME_MAX_S = (2**64 - 1) / 1e9
+LOG_TIME_MAX_S = (2**64 - 1) / 1e9
 _COMPRESSION = {
     "zstd": CompressionType.ZSTD,
     "lz4": CompressionType.LZ4,
@@ -95,11 +95,11 @@ def _row64(x: Any, name: str, n: Optional[int]) -> np.ndarray:
 
 
 def _log_time(t: float) -> int:
-    ns = round(t * 1e9) if 0.0 <= t <= _LOG_TIME_MAX_S else -1
+    ns = round(t * 1e9) if 0.0 <= t <= LOG_TIME_MAX_S else -1
     if not 0 <= ns < 2**64:  # t at the very top rounds up to 2**64
         raise ValueError(
             f"t = {t!r} s cannot be an MCAP log_time (unsigned 64-bit ns): need 0 <= t < "
-            f"{_LOG_TIME_MAX_S:.4g} and finite"
+            f"{LOG_TIME_MAX_S:.4g} and finite"
         )
     return ns
 
@@ -390,7 +390,7 @@ class McapRecordingWriter:
         f = col(force, "force", m)
         pos, ori = col(position, "position", 3), col(orientation, "orientation", 4)
         temp = col(temperature, "temperature", None)
-        ok = np.isfinite(t) & (t >= 0.0) & (t <= _LOG_TIME_MAX_S)
+        ok = np.isfinite(t) & (t >= 0.0) & (t <= LOG_TIME_MAX_S)
         if not ok.all():
             i = int(np.argmin(ok))
             _log_time(float(t[i]))  # raises the writer's message
