@@ -116,7 +116,7 @@ def _client(scheduler: Optional[str], workers: int, memory_limit: Any, command: 
     # Worker saturation 1.0: the scheduler hands a one-thread worker its next recording only
     # when the last is done. With Dask's default 1.1 (ceil: two per worker) a worker could
     # hold a second recording at the end of the run while the other worker had nothing left
-    # to do, and one job of several seconds then ran alone
+    # to do, and one job of several seconds then ran alone.
     # On Linux the nannies fork their workers from this process (Dask's default is spawn),
     # after the job's modules are imported here: a spawned worker imports numpy, scipy and
     # cablesvc again before its first recording, about 1.2 s of CPU each and 0.7 s more
