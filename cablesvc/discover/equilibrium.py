@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from cablesvc.discover.evidence import _t_p, holm
+from cablesvc.discover.evidence import holm, t_test
 from cablesvc.kinematics import PLANAR_WRENCH_ROWS, inverse_kinematics, platform_wrench, structure_matrix
 
 __all__ = ["equilibrium_check"]
@@ -119,7 +119,7 @@ def equilibrium_check(geom: Any, t: np.ndarray, position: np.ndarray, orientatio
             X = np.concatenate(base + [c for j in chosen + [i] for c in sensor[j]], axis=2)
             e1 = _loo(X, Ww, blocks)
             g = np.array([float(np.mean(a - b)) / r for a, b in zip(cur, e1)])
-            tt, p = _t_p(g)
+            tt, p = t_test(g)
             if best is None or p < best[1] or (p == best[1] and tt > best[2]):
                 best = (i, p, tt, e1)
         if best is None:

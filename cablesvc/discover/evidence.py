@@ -25,10 +25,11 @@ from typing import Optional
 import numpy as np
 from scipy import special
 
-from cablesvc.discover.select import _Cache, _designs, _solve, _strip
+from cablesvc.discover.select import DesignCache, joint_designs, solve_designs, strips_nuisance
 from cablesvc.models.terms import Signals, Term
 
-__all__ = ["block_ids", "loo_errors", "block_gain_test", "excess_test", "holm", "effective_n"]
+__all__ = ["block_ids", "loo_errors", "block_gain_test", "excess_test", "holm", "effective_n", "signed_rank_test",
+           "t_test"]
 
 
 def block_ids(t: np.ndarray, block: float, mask: np.ndarray) -> list[np.ndarray]:
@@ -43,11 +44,11 @@ def block_ids(t: np.ndarray, block: float, mask: np.ndarray) -> list[np.ndarray]
 
 
 def loo_errors(s: Signals, c: int, r: np.ndarray, terms: list[Term], hypers: list[dict[str, float]],
-               blocks: list[np.ndarray], cache: Optional[_Cache] = None) -> list[np.ndarray]:
+               blocks: list[np.ndarray], cache: Optional[DesignCache] = None) -> list[np.ndarray]:
     """Held-out errors r - pred on each block, the terms' linear parameters fitted on all
     the other blocks (hyper-parameters held)."""
-    cache = cache or _Cache()
-    ds = _designs(terms, hypers, s, c, cache, _strip(terms))
+    cache = cache or DesignCache()
+    ds = joint_designs(terms, hypers, s, c, cache, strips_nuisance(terms))
     allb = np.zeros(s.n, bool)
     for b in blocks:
         allb[b] = True
@@ -55,7 +56,7 @@ def loo_errors(s: Signals, c: int, r: np.ndarray, terms: list[Term], hypers: lis
     for b in blocks:
         mask = allb.copy()
         mask[b] = False
-        _, pred, _ = _solve(ds, r, mask)
+        _, pred, _ = solve_designs(ds, r, mask)
         out.append(r[b] - pred[b])
     return out
 
@@ -95,7 +96,7 @@ def signed_rank_test(g: np.ndarray) -> tuple[float, float]:
     return float(res.statistic), float(res.pvalue)
 
 
-def _t_p(g: np.ndarray) -> tuple[float, float]:
+def t_test(g: np.ndarray) -> tuple[float, float]:
     """One-sided t-test of mean(g) > 0: (t, p)."""
     k = g.size
     if k < 3:

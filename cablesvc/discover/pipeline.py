@@ -484,7 +484,7 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     from cablesvc.discover.evidence import block_gain_test, excess_test, holm, loo_errors
     from cablesvc.discover.locate import state_regions
     from cablesvc.discover.nuisance import Recalibration, describe_recalibration
-    from cablesvc.discover.select import _Cache
+    from cablesvc.discover.select import DesignCache as _Cache
     from cablesvc.models.terms import LIBRARY
 
     m = s.m

@@ -45,7 +45,7 @@ from typing import Any, Optional
 import numpy as np
 
 from cablesvc.discover.evidence import block_gain_test, block_ids, holm, loo_errors
-from cablesvc.discover.select import Fit, Selection, Step, _Cache, fit_terms
+from cablesvc.discover.select import DesignCache, Fit, Selection, Step, fit_terms
 from cablesvc.models.terms import Signals, Term
 
 __all__ = ["BlockScreen", "ScreenResult"]
@@ -80,14 +80,14 @@ class BlockScreen:
 
     def select(self, s: Signals, r: np.ndarray, terms: list[Term], train: np.ndarray, valid: np.ndarray,
                noise: Optional[np.ndarray] = None, base: Optional[list[Term]] = None,
-               cache: Optional[_Cache] = None, progress: Optional[Any] = None, block: float = 1.25) -> ScreenResult:
+               cache: Optional[DesignCache] = None, progress: Optional[Any] = None, block: float = 1.25) -> ScreenResult:
         """Screen ``terms`` on every cable of residual ``r`` (N, m) [N] beside the ``base``
         terms (the nuisance, fitted on every cable); ``noise`` (m,) [N] the noise floor;
         ``block`` [s] the test unit (the pipeline gives half its split block)."""
         base = list(base or [])
         m = s.m
         noise = np.full(m, 1.0) if noise is None else np.asarray(noise, float)
-        cache = cache or _Cache()
+        cache = cache or DesignCache()
         fitmask = train | valid
         blocks = block_ids(s.t, block, fitmask)
         hb = [{} for _ in base]

@@ -35,7 +35,8 @@ from scipy.optimize import lsq_linear, minimize_scalar
 
 from cablesvc.models.terms import Design, Signals, Term
 
-__all__ = ["Fit", "Selection", "SelectOptions", "ForwardSelector", "fit_terms", "predict_terms"]
+__all__ = ["DesignCache", "Fit", "Selection", "SelectOptions", "ForwardSelector", "fit_terms", "joint_designs",
+           "predict_terms", "solve_designs", "strips_nuisance"]
 
 
 @dataclass
@@ -62,7 +63,11 @@ class Fit:
         return sum(len(self.params[t.name]) + t.n_hyper for t in self.terms)
 
 
-class _Cache:
+class DesignCache:
+    """Designs of (term, cable, hyper-parameters, input delay) computed once per discovery
+    and shared by the fitting, the screen and the held-out tests; :meth:`get` with
+    ``strip`` drops a term's generic (nuisance) columns where another term owns them."""
+
     def __init__(self) -> None:
         self.d: dict[tuple, Design] = {}
 
@@ -98,7 +103,9 @@ class _NuisanceOnly(Term):
         return self.base.design(s, c, self.base.grid(s)[0]).only(self.base.nuisance)
 
 
-def _strip(terms: list[Term]) -> bool:
+def strips_nuisance(terms: list[Term]) -> bool:
+    """Whether one of ``terms`` owns the generic (nuisance) columns, so that the others'
+    copies of them are dropped from their designs."""
     return any(t.owns_nuisance for t in terms)
 
 
@@ -137,7 +144,9 @@ def _bounded_lstsq(X: np.ndarray, y: np.ndarray, lo: np.ndarray, hi: np.ndarray)
     return res.x / sc
 
 
-def _solve(designs: list[Design], r: np.ndarray, mask: np.ndarray) -> tuple[list[np.ndarray], np.ndarray, float]:
+def solve_designs(designs: list[Design], r: np.ndarray, mask: np.ndarray) -> tuple[list[np.ndarray], np.ndarray, float]:
+    """Joint bounded least squares of ``designs`` to ``r`` on the ticks of ``mask``:
+    (parameters per design, prediction on all ticks, SSE on the masked ticks)."""
     n = r.shape[0]
     fixed = np.zeros(n)
     for d in designs:
@@ -186,20 +195,22 @@ def _delay(terms: list[Term], hs: list[dict[str, float]]) -> float:
     return 0.0
 
 
-def _designs(terms, hs, s, c, cache, strip) -> list[Design]:
+def joint_designs(terms, hs, s, c, cache, strip) -> list[Design]:
+    """The designs of ``terms`` with hyper-parameters ``hs`` on cable ``c`` (from ``cache``),
+    each seeing the input delay of the cable's dead-time term, if any."""
     tau = _delay(terms, hs)
     return [cache.get(t, s, c, h, strip, 0.0 if t.delays_input else tau) for t, h in zip(terms, hs)]
 
 
 def fit_terms(s: Signals, c: int, r: np.ndarray, terms: list[Term], mask: np.ndarray,
-              hypers: Optional[list[Optional[dict[str, float]]]] = None, cache: Optional[_Cache] = None,
+              hypers: Optional[list[Optional[dict[str, float]]]] = None, cache: Optional[DesignCache] = None,
               passes: int = 1) -> Fit:
     """Fit ``terms`` jointly to the residual ``r`` (N,) [N] of cable ``c`` on the ticks of
     ``mask``. ``hypers``: starting hyper-parameters per term (None: searched on the grid).
     Every term's hyper-parameters are searched on its grid with the others held, for
     ``passes`` rounds, then refined by a bounded scalar search where the term asks."""
-    cache = cache or _Cache()
-    strip = _strip(terms)
+    cache = cache or DesignCache()
+    strip = strips_nuisance(terms)
     hyp: list[dict[str, float]] = []
     for j, t in enumerate(terms):
         h = None if hypers is None or j >= len(hypers) else hypers[j]
@@ -208,10 +219,10 @@ def fit_terms(s: Signals, c: int, r: np.ndarray, terms: list[Term], mask: np.nda
         return _assemble([], [], [], [], r, mask)
 
     def designs(hs: list[dict[str, float]]) -> list[Design]:
-        return _designs(terms, hs, s, c, cache, strip)
+        return joint_designs(terms, hs, s, c, cache, strip)
 
     def sse_with(j: int, h: dict[str, float]) -> float:
-        return _solve(designs([h if i == j else hyp[i] for i in range(len(terms))]), r, mask)[2]
+        return solve_designs(designs([h if i == j else hyp[i] for i in range(len(terms))]), r, mask)[2]
 
     todo = [j for j, t in enumerate(terms) if hypers is None or j >= len(hypers) or hypers[j] is None]
     for _ in range(max(1, passes)):
@@ -233,7 +244,7 @@ def fit_terms(s: Signals, c: int, r: np.ndarray, terms: list[Term], mask: np.nda
                         if res.fun < scores[k]:
                             hyp[j] = {**hyp[j], key: float(res.x)}
     ds = designs(hyp)
-    plist, _, _ = _solve(ds, r, mask)
+    plist, _, _ = solve_designs(ds, r, mask)
     return _assemble(terms, hyp, ds, plist, r, mask)
 
 
@@ -345,7 +356,7 @@ class ForwardSelector:
     def _specific(self, s, c, r, cur, t, new, train, valid, cache, n_v, n_tr, var) -> bool:
         """Whether ``t``'s specific columns beat its generic (nuisance) ones alone: a term
         with a plain-gain column may only win on a residual its own signature explains."""
-        if not t.nuisance or _strip(cur.terms + [t]):
+        if not t.nuisance or strips_nuisance(cur.terms + [t]):
             return True
         nt = _NuisanceOnly(t)
         f = fit_terms(s, c, r[:, c], cur.terms + [nt], train,
@@ -428,7 +439,7 @@ class ForwardSelector:
         m = r.shape[1]
         var = np.zeros(m) if noise is None else np.asarray(noise, float) ** 2
         n_v, n_tr = int(valid.sum()), int(train.sum())
-        cache = _Cache()
+        cache = DesignCache()
         self._base = {t.name for t in (base or [])}
         fits = {c: fit_terms(s, c, r[:, c], list(base or []), train, cache=cache) for c in range(m)}
         mse = {c: self._mse(r, fits[c], valid, c) for c in range(m)}
