@@ -22,6 +22,8 @@ held for its own hold time. Codes and severities are stable (``docs/messages.md`
 The per-tick work of the drift, spread and state detectors runs in small numba kernels (one call
 per tick for all cables; no Python loop per cable). The same compiled per-sample code is
 used tick by tick and by the offline ``update_batch``, so both give identical results.
+:func:`jit_kernel` and :func:`jit_inline` are how the detector modules compile them (an
+implementation detail of this package, not in ``__all__``).
 """
 
 from __future__ import annotations
@@ -126,7 +128,7 @@ class AlarmEvent:
                    suggested_action=p.get("suggested_action"), value=p.get("value"), limit=p.get("limit"))
 
 
-def _jit(signature: str):
+def jit_kernel(signature: str):
     """numba.njit with an explicit signature (compiled once, at import, never again in the
     loop) and an on-disk cache; without a writable cache location, compile without cache."""
     import numba
@@ -139,7 +141,7 @@ def _jit(signature: str):
     return deco
 
 
-def _jit_inline(fn):
+def jit_inline(fn):
     """numba.njit for helpers called only from other kernels (compiled into them)."""
     import numba
     return numba.njit(inline="always")(fn)

@@ -51,8 +51,8 @@ from typing import Optional, Sequence
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from cablesvc.alarms import DRIFT_SUGGESTED_ACTION, AlarmEvent, _jit, _jit_inline
-from cablesvc.alarms.residual import (RUN_SIGNATURE, STEP_SIGNATURE, ResidualDetector, _ewma_gain, _sample_dt,
+from cablesvc.alarms import DRIFT_SUGGESTED_ACTION, AlarmEvent, jit_inline, jit_kernel
+from cablesvc.alarms.residual import (RUN_SIGNATURE, STEP_SIGNATURE, ResidualDetector, ewma_gain, sample_dt,
                                       block_samples, tick_samples)
 
 __all__ = ["DriftConfig", "DriftDetector"]
@@ -107,7 +107,7 @@ _NE = 8
 _NAN = math.nan
 
 
-@_jit_inline
+@jit_inline
 def _restart_cusum(S, i, t):
     """Both CUSUM sides of cable i back to zero, their runs starting at time t."""
     S[_CU, i] = 0.0
@@ -120,7 +120,7 @@ def _restart_cusum(S, i, t):
     S[_CL_ST, i] = 0.0
 
 
-@_jit_inline
+@jit_inline
 def _start(S, i, t, base):
     """Cable i leaves the warm-up (or is given a baseline) at time t."""
     S[_BASE, i] = base
@@ -132,7 +132,7 @@ def _start(S, i, t, base):
     S[_CLEAR_SINCE, i] = _NAN
 
 
-@_jit_inline
+@jit_inline
 def _cusum_side(S, i, t, inc, z, dt, c, c_t0, c_sz, c_st):
     """One side of the two-sided CUSUM of cable i: S[c] += inc, floored at 0 (then the
     run restarts at t); while it runs, the residual integral S[c_sz] and duration S[c_st]
@@ -149,7 +149,7 @@ def _cusum_side(S, i, t, inc, z, dt, c, c_t0, c_sz, c_st):
         S[c_st, i] += dt
 
 
-@_jit_inline
+@jit_inline
 def _drift_sample(S, P, t, r, i, E, ne, row):
     """One sample r [N] of cable i at time t [s]; appends raise/clear records to E[ne:].
     Returns the new number of records."""
@@ -164,10 +164,10 @@ def _drift_sample(S, P, t, r, i, E, ne, row):
         if t - S[_W_T0, i] >= P[_P_WARMUP]:
             _start(S, i, t, S[_W_SUM, i] / S[_W_N, i])
         return ne
-    dt = _sample_dt(t, S[_T_LAST, i], P[_P_MAX_DT])   # 0: first sample after a preset baseline
+    dt = sample_dt(t, S[_T_LAST, i], P[_P_MAX_DT])   # 0: first sample after a preset baseline
     S[_T_LAST, i] = t
     z = r - S[_BASE, i]
-    S[_EWMA, i] += _ewma_gain(dt, P[_P_TAU]) * (z - S[_EWMA, i])
+    S[_EWMA, i] += ewma_gain(dt, P[_P_TAU]) * (z - S[_EWMA, i])
     clip = P[_P_CLIP]
     zc = z
     if zc > clip:
@@ -237,13 +237,13 @@ def _drift_sample(S, P, t, r, i, E, ne, row):
     return ne
 
 
-@_jit(STEP_SIGNATURE)
+@jit_kernel(STEP_SIGNATURE)
 def _drift_step(S, P, t, r, E):
     """One tick of every cable (:func:`_drift_sample` each). Returns the number of event records."""
     return tick_samples(_drift_sample, S, P, t, r, E)
 
 
-@_jit(RUN_SIGNATURE)
+@jit_kernel(RUN_SIGNATURE)
 def _drift_run(S, P, T, R, E, row0):
     """A block of ticks from row0 on (:func:`~cablesvc.alarms.residual.block_samples`)."""
     return block_samples(_drift_sample, S, P, T, R, E, row0)
@@ -263,6 +263,15 @@ class DriftDetector(ResidualDetector):
     n_record = _NE
     _step = staticmethod(_drift_step)
     _run = staticmethod(_drift_run)
+    # the state rows that ResidualDetector's reset, deactivate, rebase_time, ready, active and
+    # describe_state read
+    state_names = _STATE_NAMES
+    rest_nan_rows = (_BASE, _W_T0, _T_LAST, _CU_T0, _CL_T0, RAISE_SINCE, _CLEAR_SINCE, _SINCE, _OFFSET)
+    time_rows = (_W_T0, _T_LAST, _CU_T0, _CL_T0, RAISE_SINCE, _CLEAR_SINCE, _SINCE)
+    alarm_zero_rows = (_ACTIVE, _SIDE)
+    alarm_nan_rows = (RAISE_SINCE, _CLEAR_SINCE, _SINCE, _OFFSET)
+    ready_row = _READY
+    active_row = _ACTIVE
 
     def __init__(self, n_cables: int, config: DriftConfig | None = None,
                  cable_names: Sequence[str] | None = None):
@@ -270,17 +279,7 @@ class DriftDetector(ResidualDetector):
         if self.config.baseline_n is not None:
             self.set_baseline(self.config.baseline_n)
 
-    # -- baseline --------------------------------------------------------------------------
-    def reset(self, cables: Sequence[int] | None = None) -> None:
-        """Forget everything of these cables (default: all), active alarms included, and learn
-        their baseline again from the next ``warmup_s`` seconds (e.g. after re-identifying
-        the cable model). Raises no clear event: the caller knows what it reset."""
-        idx = slice(None) if cables is None else np.asarray(list(cables), dtype=int)
-        S = self._S
-        S[:, idx] = 0.0
-        for row in (_BASE, _W_T0, _T_LAST, _CU_T0, _CL_T0, RAISE_SINCE, _CLEAR_SINCE, _SINCE, _OFFSET):
-            S[row, idx] = np.nan
-
+    # -- baseline (reset, ready: ResidualDetector's) ----------------------------------------
     def set_baseline(self, baseline_n) -> None:
         """Use this baseline [N] (a number or one per cable) instead of learning it; the
         detector's other state of every cable restarts."""
@@ -299,11 +298,6 @@ class DriftDetector(ResidualDetector):
         return np.where(self._S[_READY] > 0, self._S[_BASE], np.nan)
 
     @property
-    def ready(self) -> np.ndarray:
-        """(m,) bool: the cable's baseline is known (warm-up over)."""
-        return self._S[_READY] > 0
-
-    @property
     def offset(self) -> np.ndarray:
         """Current EWMA offset estimate per cable [N] (NaN during the warm-up)."""
         return np.where(self._S[_READY] > 0, self._S[_EWMA], np.nan)
@@ -312,11 +306,6 @@ class DriftDetector(ResidualDetector):
     def cusum(self) -> np.ndarray:
         """(2, m) current CUSUM statistics [N s]: upper (positive offsets), lower."""
         return self._S[[_CU, _CL]].copy()
-
-    @property
-    def active(self) -> np.ndarray:
-        """(m,) bool: a drift alarm is raised on the cable."""
-        return self._S[_ACTIVE] > 0
 
     def _event(self, rec: np.ndarray, t: float, seq: int | None) -> AlarmEvent:
         i = int(rec[_E_CABLE])
@@ -335,18 +324,3 @@ class DriftDetector(ResidualDetector):
                f"baseline of {base:+.2f} N (now {off:+.3f} N)")
         return AlarmEvent("clear", "drift", i, self._severity, t, since, seq, msg, offset_n=off,
                           value=off, limit=cfg.clear_n)
-
-    # -- snapshots (state_dict / load_state_dict: ResidualDetector's) --------------------------
-    def deactivate(self) -> None:
-        """Drop every cable's active alarm and pending raise/clear, keeping the baseline and
-        the statistics (for a restored state whose detector is disabled in this config).
-        Raises no clear event."""
-        S = self._S
-        S[_ACTIVE] = 0.0
-        S[_SIDE] = 0.0
-        for row in (RAISE_SINCE, _CLEAR_SINCE, _SINCE, _OFFSET):
-            S[row] = np.nan
-
-    def describe_state(self) -> dict[str, list[float]]:
-        """Named rows of the state (for debugging and tests)."""
-        return {name: self._S[k].tolist() for k, name in enumerate(_STATE_NAMES)}

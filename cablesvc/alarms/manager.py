@@ -184,15 +184,10 @@ class AlarmManager:
         restore, ``delta`` = the first tick's t - the snapshot's last t, so that an alarm keeps
         its age (the downtime is not counted) whatever the controller clock did meanwhile
         (also when it restarted from 0). NaN (no timer) stays NaN."""
-        from cablesvc.alarms import drift, spread
-
         if not math.isfinite(delta) or delta == 0.0:
             return
-        for det, rows in ((self.drift, (drift._W_T0, drift._T_LAST, drift._CU_T0, drift._CL_T0, drift.RAISE_SINCE,
-                                        drift._CLEAR_SINCE, drift._SINCE)),
-                          (self.spread, (spread._W_T0, spread._T_LAST, spread.RAISE_SINCE, spread._CLEAR_SINCE,
-                                         spread._SINCE))):
-            det._S[list(rows)] += delta
+        self.drift.rebase_time(delta)
+        self.spread.rebase_time(delta)
         self.state.rebase_time(delta)
         for key, e in list(self._active.items()):
             self._active[key] = dataclasses.replace(

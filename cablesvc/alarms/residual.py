@@ -4,10 +4,10 @@
 :class:`~cablesvc.alarms.spread.SpreadDetector` (its spread) weigh every sample by the same
 law and run the same way:
 
-- :func:`_sample_dt`: the weight of a sample is the time since the cable's previous valid
+- :func:`sample_dt`: the weight of a sample is the time since the cable's previous valid
   sample, at most ``max_dt_s`` (a gap in the measurements does not count as evidence), so
   every sum is an integral over time and the tuning does not depend on the tick rate;
-- :func:`_ewma_gain`: an EWMA with a time constant in seconds;
+- :func:`ewma_gain`: an EWMA with a time constant in seconds;
 - :class:`ResidualDetector`: the per-tick :meth:`~ResidualDetector.update` (one numba call
   for all cables, no allocation unless an event happens), the block-wise
   :meth:`~ResidualDetector.update_batch` running the same compiled per-sample code (so both
@@ -20,7 +20,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from cablesvc.alarms import ALARM_CODES, AlarmEvent, _jit_inline
+from cablesvc.alarms import ALARM_CODES, AlarmEvent, jit_inline
 
 __all__ = ["RUN_SIGNATURE", "STEP_SIGNATURE", "ResidualDetector", "block_samples", "tick_samples"]
 
@@ -28,8 +28,8 @@ __all__ = ["RUN_SIGNATURE", "STEP_SIGNATURE", "ResidualDetector", "block_samples
 E_ROW, E_CABLE = 0, 1
 
 
-@_jit_inline
-def _sample_dt(t, t_last, max_dt):
+@jit_inline
+def sample_dt(t, t_last, max_dt):
     """Weight [s] of a sample at time t after the cable's previous valid one at t_last: the
     time between them, 0 when time stands still or goes back (or t_last is NaN), at most
     max_dt."""
@@ -41,14 +41,19 @@ def _sample_dt(t, t_last, max_dt):
     return dt
 
 
-@_jit_inline
-def _ewma_gain(dt, tau):
+@jit_inline
+def ewma_gain(dt, tau):
     """Gain of one sample of weight dt [s] in an EWMA of time constant tau [s]:
     e += dt / (tau + dt) * (x - e), the exact implicit discretisation (no transcendental
     function, so the tick-by-tick and batch paths round identically)."""
     return dt / (tau + dt)
 
 
+# Each detector module writes its own two-line wrappers (``_drift_step``/``_drift_run``,
+# ``_spread_step``/``_spread_run``) around tick_samples/block_samples on purpose: numba needs
+# one concrete, module-level function per detector to compile it at import with an explicit
+# signature and to cache it on disk (cache=True keys the cache by the function's module and
+# name; one factory here would give both detectors' closures the same cache name).
 #: numba signatures of a detector's per-tick kernel (S, P, t, r, E) -> records and per-block
 #: kernel (S, P, T, R, E, row0) -> (records, next row); see :func:`tick_samples`, :func:`block_samples`
 STEP_SIGNATURE = "int64(float64[:, ::1], float64[::1], float64, float64[::1], float64[:, ::1])"
@@ -56,7 +61,7 @@ RUN_SIGNATURE = ("UniTuple(int64, 2)(float64[:, ::1], float64[::1], float64[::1]
                  "float64[:, ::1], int64)")
 
 
-@_jit_inline
+@jit_inline
 def tick_samples(sample, S, P, t, r, E):
     """One tick: ``sample`` (S, P, t, r, i, E, ne, row) -> records (a detector's inline
     per-sample kernel, which appends cable i's raise/clear records to E[ne:]) on sample
@@ -67,7 +72,7 @@ def tick_samples(sample, S, P, t, r, E):
     return ne
 
 
-@_jit_inline
+@jit_inline
 def block_samples(sample, S, P, T, R, E, row0):
     """Ticks row0.. of a block (T (n,) [s], R (n, m) [N]) through ``sample`` (as
     :func:`tick_samples`), until the end of the block or until E cannot hold one more
@@ -93,8 +98,11 @@ class ResidualDetector:
     ``config_class``, ``n_state`` (rows of its (n_state, m) state),
     ``n_record`` (columns of its event records, starting with row and cable), the numba
     kernels ``_step`` (S, P, t, r, E) -> records and ``_run`` (S, P, T, R, E, row0) ->
-    (records, next row) as staticmethods, :meth:`reset` (cables -> their state at rest;
-    called here for all) and :meth:`_event` (one record -> AlarmEvent).
+    (records, next row) as staticmethods, :meth:`_event` (one record -> AlarmEvent), and
+    the layout of its state rows that :meth:`reset`, :meth:`deactivate`,
+    :meth:`rebase_time`, :attr:`ready`, :attr:`active` and :meth:`describe_state` read:
+    ``state_names``, ``rest_nan_rows``, ``time_rows``, ``alarm_zero_rows``,
+    ``alarm_nan_rows``, ``ready_row`` and ``active_row``.
     ``config`` must have ``as_array()`` (the kernel's parameter vector).
     """
 
@@ -104,6 +112,18 @@ class ResidualDetector:
     n_record = 2
     _step: Any = None
     _run: Any = None
+    #: name of every state row, in row order
+    state_names: tuple[str, ...] = ()
+    #: rows that are NaN in a cable's state at rest (times and values not known yet); the others are 0
+    rest_nan_rows: tuple[int, ...] = ()
+    #: rows that hold controller times [s]
+    time_rows: tuple[int, ...] = ()
+    #: rows of the raised alarm and its pending raise/clear: set to 0 / NaN by :meth:`deactivate`
+    alarm_zero_rows: tuple[int, ...] = ()
+    alarm_nan_rows: tuple[int, ...] = ()
+    #: row that is 1 once the cable's warm-up is over, and row that is 1 while its alarm is raised
+    ready_row = 0
+    active_row = 0
 
     def __init__(self, n_cables: int, config=None, cable_names: Sequence[str] | None = None):
         self.n_cables = m = int(n_cables)
@@ -170,6 +190,46 @@ class ResidualDetector:
         if r.shape != self._shape:
             raise ValueError(f"residual must have {self.n_cables} values (one per cable), got shape {np.shape(residual)}")
         return r
+
+    def reset(self, cables: Sequence[int] | None = None) -> None:
+        """Forget everything of these cables (default: all), active alarms included: their
+        state goes back to rest and the warm-up starts again with the next sample (the drift
+        detector learns its baseline again, e.g. after re-identifying the cable model).
+        Raises no clear event: the caller knows what it reset."""
+        idx = slice(None) if cables is None else np.asarray(list(cables), dtype=int)
+        S = self._S
+        S[:, idx] = 0.0
+        for row in self.rest_nan_rows:
+            S[row, idx] = np.nan
+
+    def deactivate(self) -> None:
+        """Drop every cable's active alarm and pending raise/clear, keeping the warm-up and
+        the statistics (for a restored state whose detector is disabled in this config).
+        Raises no clear event."""
+        S = self._S
+        for row in self.alarm_zero_rows:
+            S[row] = 0.0
+        for row in self.alarm_nan_rows:
+            S[row] = np.nan
+
+    def rebase_time(self, delta: float) -> None:
+        """Move the restored times (warm-up, hold and CUSUM timers, last samples) by
+        ``delta`` [s] into this session's time base (see AlarmManager.rebase_time); NaN stays NaN."""
+        self._S[list(self.time_rows)] += delta
+
+    @property
+    def ready(self) -> np.ndarray:
+        """(m,) bool: the cable's warm-up is over (decisions are made)."""
+        return self._S[self.ready_row] > 0
+
+    @property
+    def active(self) -> np.ndarray:
+        """(m,) bool: the detector's alarm is raised on the cable."""
+        return self._S[self.active_row] > 0
+
+    def describe_state(self) -> dict[str, list[float]]:
+        """Named rows of the state (for debugging and tests)."""
+        return {name: self._S[k].tolist() for k, name in enumerate(self.state_names)}
 
     def state_dict(self) -> dict[str, np.ndarray]:
         """The detector's complete state (numeric arrays only; for the daemon's snapshots)."""

@@ -10,9 +10,9 @@ Per cable i and per sample with a finite residual r [N] (NaN = no measurement: s
 the cable's state does not change):
 
 1. **Sample weight** dt: time since the cable's previous valid sample, at most
-   ``max_dt_s`` (:func:`~cablesvc.alarms.residual._sample_dt`, the same as drift's). Every
+   ``max_dt_s`` (:func:`~cablesvc.alarms.residual.sample_dt`, the same as drift's). Every
    statistic below is an EWMA with a time constant in seconds and gain
-   dt / (tau + dt) (:func:`~cablesvc.alarms.residual._ewma_gain`), so the tuning does not
+   dt / (tau + dt) (:func:`~cablesvc.alarms.residual.ewma_gain`), so the tuning does not
    depend on the tick rate.
 2. **Mean** mu: EWMA of r with ``mean_tau_s``; z = r - mu (mu before this sample).
    Changes slower than ``mean_tau_s`` are the mean's (``drift``'s business), faster ones
@@ -32,7 +32,7 @@ the cable's state does not change):
 5. **Ratio** rho = s / floor. After ``warmup_s`` seconds of valid samples (the EWMAs
    settle), **raise** when rho > ``raise_ratio`` continuously for ``raise_hold_s``;
    **clear** when rho < ``clear_ratio`` (hysteresis) for ``clear_hold_s``. The hold timers
-   are the state alarms' (:func:`cablesvc.alarms.state._hold`): a timer that started after
+   are the state alarms' (:func:`cablesvc.alarms.state.hold`): a timer that started after
    the current t (clock restarted, older snapshot restored) restarts at t.
 
 The event's ``value`` is the spread s [N] and ``limit`` the threshold ``raise_ratio`` x
@@ -60,10 +60,10 @@ from typing import Sequence
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from cablesvc.alarms import SPREAD_SUGGESTED_ACTION, AlarmEvent, _jit, _jit_inline
-from cablesvc.alarms.residual import (RUN_SIGNATURE, STEP_SIGNATURE, ResidualDetector, _ewma_gain, _sample_dt,
+from cablesvc.alarms import SPREAD_SUGGESTED_ACTION, AlarmEvent, jit_inline, jit_kernel
+from cablesvc.alarms.residual import (RUN_SIGNATURE, STEP_SIGNATURE, ResidualDetector, ewma_gain, sample_dt,
                                       block_samples, tick_samples)
-from cablesvc.alarms.state import _ACTIVE, _CLEAR_SINCE, RAISE_SINCE, _SINCE, _hold
+from cablesvc.alarms.state import ACTIVE, CLEAR_SINCE, RAISE_SINCE, SINCE, hold
 
 __all__ = ["SpreadConfig", "SpreadDetector"]
 
@@ -99,10 +99,10 @@ class SpreadConfig(BaseModel):
 
 # ---- kernel layout -----------------------------------------------------------------------
 # state rows (NS, m): the hold-timer rows of cablesvc.alarms.state first, then ours
-_R0 = max(_ACTIVE, RAISE_SINCE, _CLEAR_SINCE, _SINCE) + 1
+_R0 = max(ACTIVE, RAISE_SINCE, CLEAR_SINCE, SINCE) + 1
 (_READY, _W_T0, _T_LAST, _R_PREV, _MEAN, _VAR, _FLOOR) = range(_R0, _R0 + 7)
 _NS = _R0 + 7
-_STATE_NAMES = {_ACTIVE: "active", RAISE_SINCE: "raise_since", _CLEAR_SINCE: "clear_since", _SINCE: "since",
+_STATE_NAMES = {ACTIVE: "active", RAISE_SINCE: "raise_since", CLEAR_SINCE: "clear_since", SINCE: "since",
                 _READY: "ready", _W_T0: "warmup_t0", _T_LAST: "t_last", _R_PREV: "r_prev", _MEAN: "mean",
                 _VAR: "spread_sq", _FLOOR: "floor_sq"}
 # parameters
@@ -114,7 +114,7 @@ _STATE_NAMES = {_ACTIVE: "active", RAISE_SINCE: "raise_since", _CLEAR_SINCE: "cl
 _NE = 6
 
 
-@_jit_inline
+@jit_inline
 def _spread_sample(S, P, t, r, i, E, ne, row):
     """One sample r [N] of cable i at time t [s]; appends raise/clear records to E[ne:].
     Returns the new number of records."""
@@ -128,16 +128,16 @@ def _spread_sample(S, P, t, r, i, E, ne, row):
         S[_W_T0, i] = t
         return ne
     gap = t - t_last
-    dt = _sample_dt(t, t_last, P[_P_MAX_DT])
+    dt = sample_dt(t, t_last, P[_P_MAX_DT])
     z = r - S[_MEAN, i]
     # the mean's gain: the EWMA's, or while the statistics are younger than its time
     # constant the running average's (so one odd first sample weighs 1/n, not 1 - n dt/tau)
-    gm = _ewma_gain(dt, P[_P_MEAN_TAU])
+    gm = ewma_gain(dt, P[_P_MEAN_TAU])
     age = t - S[_W_T0, i] + dt
     if age > 0.0 and dt / age > gm:
         gm = dt / age
     S[_MEAN, i] += gm * z
-    g = _ewma_gain(dt, P[_P_TAU])
+    g = ewma_gain(dt, P[_P_TAU])
     S[_VAR, i] += g * (z * z - S[_VAR, i])
     if gap <= P[_P_MAX_DT]:                      # consecutive samples: their difference is noise
         d = r - S[_R_PREV, i]
@@ -154,25 +154,25 @@ def _spread_sample(S, P, t, r, i, E, ne, row):
     if fl < P[_P_FLOOR_MIN]:
         fl = P[_P_FLOOR_MIN]
     s = math.sqrt(S[_VAR, i])
-    a = _hold(S, i, t, s > P[_P_RAISE] * fl, s < P[_P_CLEAR] * fl, P[_P_RAISE_HOLD], P[_P_CLEAR_HOLD])
+    a = hold(S, i, t, s > P[_P_RAISE] * fl, s < P[_P_CLEAR] * fl, P[_P_RAISE_HOLD], P[_P_CLEAR_HOLD])
     if a != 0:
         E[ne, _E_ROW] = row
         E[ne, _E_CABLE] = i
         E[ne, _E_ACTION] = a
-        E[ne, _E_SINCE] = S[_SINCE, i]
+        E[ne, _E_SINCE] = S[SINCE, i]
         E[ne, _E_SPREAD] = s
         E[ne, _E_FLOOR] = fl
         ne += 1
     return ne
 
 
-@_jit(STEP_SIGNATURE)
+@jit_kernel(STEP_SIGNATURE)
 def _spread_step(S, P, t, r, E):
     """One tick of every cable (:func:`_spread_sample` each). Returns the number of event records."""
     return tick_samples(_spread_sample, S, P, t, r, E)
 
 
-@_jit(RUN_SIGNATURE)
+@jit_kernel(RUN_SIGNATURE)
 def _spread_run(S, P, T, R, E, row0):
     """A block of ticks from row0 on (:func:`~cablesvc.alarms.residual.block_samples`)."""
     return block_samples(_spread_sample, S, P, T, R, E, row0)
@@ -193,22 +193,17 @@ class SpreadDetector(ResidualDetector):
     n_record = _NE
     _step = staticmethod(_spread_step)
     _run = staticmethod(_spread_run)
+    # the state rows that ResidualDetector's reset, deactivate, rebase_time, ready, active and
+    # describe_state read
+    state_names = tuple(name for _, name in sorted(_STATE_NAMES.items()))
+    rest_nan_rows = (RAISE_SINCE, CLEAR_SINCE, SINCE, _W_T0, _T_LAST, _R_PREV, _MEAN)
+    time_rows = (_W_T0, _T_LAST, RAISE_SINCE, CLEAR_SINCE, SINCE)
+    alarm_zero_rows = (ACTIVE,)
+    alarm_nan_rows = (RAISE_SINCE, CLEAR_SINCE, SINCE)
+    ready_row = _READY
+    active_row = ACTIVE
 
-    def reset(self, cables: Sequence[int] | None = None) -> None:
-        """Forget everything of these cables (default: all), active alarms included; their
-        statistics restart with the next sample and the warm-up with them. No clear event."""
-        idx = slice(None) if cables is None else np.asarray(list(cables), dtype=int)
-        S = self._S
-        S[:, idx] = 0.0
-        for row in (RAISE_SINCE, _CLEAR_SINCE, _SINCE, _W_T0, _T_LAST, _R_PREV, _MEAN):
-            S[row, idx] = np.nan
-
-    # -- read-outs ---------------------------------------------------------------------------
-    @property
-    def ready(self) -> np.ndarray:
-        """(m,) bool: the cable's warm-up is over (decisions are made)."""
-        return self._S[_READY] > 0
-
+    # -- read-outs (ready, active: ResidualDetector's) ----------------------------------------
     @property
     def spread(self) -> np.ndarray:
         """Current spread s per cable [N] (NaN before the first sample)."""
@@ -224,11 +219,6 @@ class SpreadDetector(ResidualDetector):
     def ratio(self) -> np.ndarray:
         """Spread / noise floor per cable (1 for white noise; NaN before the first sample)."""
         return self.spread / self.floor
-
-    @property
-    def active(self) -> np.ndarray:
-        """(m,) bool: a spread alarm is raised on the cable."""
-        return self._S[_ACTIVE] > 0
 
     def _event(self, rec: np.ndarray, t: float, seq: int | None) -> AlarmEvent:
         i = int(rec[_E_CABLE])
@@ -247,16 +237,3 @@ class SpreadDetector(ResidualDetector):
                f"noise floor of {fl:.3f} N")
         return AlarmEvent("clear", "spread", i, self._severity, t, since, seq, msg, value=s,
                           limit=cfg.clear_ratio * fl)
-
-    # -- snapshots (state_dict / load_state_dict: ResidualDetector's) --------------------------
-    def deactivate(self) -> None:
-        """Drop every cable's active alarm and pending raise/clear, keeping the statistics
-        (for a restored state whose detector is disabled in this config). No clear event."""
-        S = self._S
-        S[_ACTIVE] = 0.0
-        for row in (RAISE_SINCE, _CLEAR_SINCE, _SINCE):
-            S[row] = np.nan
-
-    def describe_state(self) -> dict[str, list[float]]:
-        """Named rows of the state (for debugging and tests)."""
-        return {name: self._S[k].tolist() for k, name in sorted(_STATE_NAMES.items())}

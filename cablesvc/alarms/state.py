@@ -35,7 +35,7 @@ import time
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from cablesvc.alarms import ALARM_CODES, AlarmEvent, _jit, _jit_inline
+from cablesvc.alarms import ALARM_CODES, AlarmEvent, jit_inline, jit_kernel
 from cablesvc.config.params import ModelParams
 from cablesvc.config.robot import RobotGeometry
 
@@ -94,7 +94,7 @@ class InputConfig(BaseModel):
 
 # ---- kernel --------------------------------------------------------------------------------
 # channel state rows (4, C), C = 3 m + 1 channels: slack[m], over_limit[m], amplitude[m], wrench
-_ACTIVE, RAISE_SINCE, _CLEAR_SINCE, _SINCE = range(4)
+ACTIVE, RAISE_SINCE, CLEAR_SINCE, SINCE = range(4)
 _KINDS = ("slack", "over_limit", "amplitude_range", "wrench_residual")
 # parameters
 (_P_SLACK, _P_SLACK_RH, _P_SLACK_CH, _P_SLACK_MARGIN,
@@ -107,41 +107,41 @@ _KIND_FLAG = {"slack": _P_SLACK, "over_limit": _P_OVER, "amplitude_range": _P_AM
 _E_CH, _E_ACTION, _E_SINCE, _E_VALUE, _E_LIMIT = range(5)
 
 
-@_jit_inline
-def _hold(ST, c, t, raise_cond, clear_cond, raise_hold, clear_hold):
+@jit_inline
+def hold(ST, c, t, raise_cond, clear_cond, raise_hold, clear_hold):
     """Hold-time state machine of channel c at time t: +1 raised, -1 cleared, 0 nothing.
 
     A pending raise/clear whose start lies after t (the controller clock restarted, or a
     snapshot of an older run was restored) restarts its hold timer at t; otherwise a timer
     from the old time base would hold the alarm back for the old uptime."""
-    if ST[_ACTIVE, c] == 0.0:
+    if ST[ACTIVE, c] == 0.0:
         if raise_cond:
             # not pending (NaN), or the clock went back: (re)start the timer
             if ST[RAISE_SINCE, c] != ST[RAISE_SINCE, c] or t < ST[RAISE_SINCE, c]:
                 ST[RAISE_SINCE, c] = t
             if t - ST[RAISE_SINCE, c] >= raise_hold:
-                ST[_ACTIVE, c] = 1.0
-                ST[_SINCE, c] = ST[RAISE_SINCE, c]
+                ST[ACTIVE, c] = 1.0
+                ST[SINCE, c] = ST[RAISE_SINCE, c]
                 ST[RAISE_SINCE, c] = math.nan
-                ST[_CLEAR_SINCE, c] = math.nan
+                ST[CLEAR_SINCE, c] = math.nan
                 return 1
         else:
             ST[RAISE_SINCE, c] = math.nan
     else:
         if clear_cond:
             # not pending (NaN), or the clock went back: (re)start the timer
-            if ST[_CLEAR_SINCE, c] != ST[_CLEAR_SINCE, c] or t < ST[_CLEAR_SINCE, c]:
-                ST[_CLEAR_SINCE, c] = t
-            if t - ST[_CLEAR_SINCE, c] >= clear_hold:
-                ST[_ACTIVE, c] = 0.0
-                ST[_CLEAR_SINCE, c] = math.nan
+            if ST[CLEAR_SINCE, c] != ST[CLEAR_SINCE, c] or t < ST[CLEAR_SINCE, c]:
+                ST[CLEAR_SINCE, c] = t
+            if t - ST[CLEAR_SINCE, c] >= clear_hold:
+                ST[ACTIVE, c] = 0.0
+                ST[CLEAR_SINCE, c] = math.nan
                 return -1
         else:
-            ST[_CLEAR_SINCE, c] = math.nan
+            ST[CLEAR_SINCE, c] = math.nan
     return 0
 
 
-@_jit_inline
+@jit_inline
 def _record(E, ne, c, action, since, value, limit):
     E[ne, _E_CH] = c
     E[ne, _E_ACTION] = action
@@ -151,7 +151,7 @@ def _record(E, ne, c, action, since, value, limit):
     return ne + 1
 
 
-@_jit("int64(float64[:, ::1], float64[::1], float64[:, ::1], float64, float64[::1], boolean[::1], "
+@jit_kernel("int64(float64[:, ::1], float64[::1], float64[:, ::1], float64, float64[::1], boolean[::1], "
       "float64[::1], float64[::1], float64[:, ::1])")
 def _state_step(ST, P, L, t, force, slack, wres, amp, E):
     """One tick of every state alarm. L (2, m): force_min, force_max [N]. Returns records."""
@@ -161,22 +161,22 @@ def _state_step(ST, P, L, t, force, slack, wres, amp, E):
         margin = P[_P_SLACK_MARGIN]
         for i in range(m):
             f = force[i]
-            a = _hold(ST, i, t, slack[i], (not slack[i]) and f >= L[0, i] + margin,
+            a = hold(ST, i, t, slack[i], (not slack[i]) and f >= L[0, i] + margin,
                       P[_P_SLACK_RH], P[_P_SLACK_CH])
             if a > 0:
-                ne = _record(E, ne, i, 1.0, ST[_SINCE, i], f, L[0, i])
+                ne = _record(E, ne, i, 1.0, ST[SINCE, i], f, L[0, i])
             elif a < 0:
-                ne = _record(E, ne, i, -1.0, ST[_SINCE, i], f, L[0, i] + margin)
+                ne = _record(E, ne, i, -1.0, ST[SINCE, i], f, L[0, i] + margin)
     if P[_P_OVER] != 0.0:
         margin = P[_P_OVER_MARGIN]
         for i in range(m):
             f = force[i]
             c = m + i
-            a = _hold(ST, c, t, f > L[1, i], f <= L[1, i] - margin, P[_P_OVER_RH], P[_P_OVER_CH])
+            a = hold(ST, c, t, f > L[1, i], f <= L[1, i] - margin, P[_P_OVER_RH], P[_P_OVER_CH])
             if a > 0:
-                ne = _record(E, ne, c, 1.0, ST[_SINCE, c], f, L[1, i])
+                ne = _record(E, ne, c, 1.0, ST[SINCE, c], f, L[1, i])
             elif a < 0:
-                ne = _record(E, ne, c, -1.0, ST[_SINCE, c], f, L[1, i] - margin)
+                ne = _record(E, ne, c, -1.0, ST[SINCE, c], f, L[1, i] - margin)
     if P[_P_AMP] != 0.0:
         lo = P[_P_AMP_LO]
         hi = P[_P_AMP_HI]
@@ -186,22 +186,22 @@ def _state_step(ST, P, L, t, force, slack, wres, amp, E):
             c = 2 * m + i
             above = A > hi * (1.0 + tol)
             below = A < lo * (1.0 - tol)
-            a = _hold(ST, c, t, above or below, A >= lo and A <= hi, P[_P_AMP_RH], P[_P_AMP_CH])
+            a = hold(ST, c, t, above or below, A >= lo and A <= hi, P[_P_AMP_RH], P[_P_AMP_CH])
             if a > 0:
-                ne = _record(E, ne, c, 1.0, ST[_SINCE, c], A, hi if above else lo)
+                ne = _record(E, ne, c, 1.0, ST[SINCE, c], A, hi if above else lo)
             elif a < 0:
-                ne = _record(E, ne, c, -1.0, ST[_SINCE, c], A, hi if A > 0.5 * (lo + hi) else lo)
+                ne = _record(E, ne, c, -1.0, ST[SINCE, c], A, hi if A > 0.5 * (lo + hi) else lo)
     if P[_P_WR] != 0.0:
         s = wres[0] * wres[0] + wres[1] * wres[1]
         if P[_P_PLANAR] == 0.0:
             s += wres[2] * wres[2]
         norm = math.sqrt(s)
         c = 3 * m
-        a = _hold(ST, c, t, norm > P[_P_WR_RAISE], norm < P[_P_WR_CLEAR], P[_P_WR_RH], P[_P_WR_CH])
+        a = hold(ST, c, t, norm > P[_P_WR_RAISE], norm < P[_P_WR_CLEAR], P[_P_WR_RH], P[_P_WR_CH])
         if a > 0:
-            ne = _record(E, ne, c, 1.0, ST[_SINCE, c], norm, P[_P_WR_RAISE])
+            ne = _record(E, ne, c, 1.0, ST[SINCE, c], norm, P[_P_WR_RAISE])
         elif a < 0:
-            ne = _record(E, ne, c, -1.0, ST[_SINCE, c], norm, P[_P_WR_CLEAR])
+            ne = _record(E, ne, c, -1.0, ST[SINCE, c], norm, P[_P_WR_CLEAR])
     return ne
 
 
@@ -347,7 +347,7 @@ class StateAlarms:
         for k, kind in enumerate(_KINDS):            # channels k m .. k m + m (wrench: one)
             if not self.enabled(kind):
                 ch = slice(k * m, k * m + (1 if kind == "wrench_residual" else m))
-                self._ST[_ACTIVE, ch] = 0.0
+                self._ST[ACTIVE, ch] = 0.0
                 self._ST[RAISE_SINCE:, ch] = np.nan
 
 
