@@ -46,7 +46,9 @@ from hdrh.histogram import HdrHistogram
 BENCH_DEADLINE_S = 0.25
 
 
-def _percentiles(lat_ns: list[int]) -> dict[str, float]:
+def latency_percentiles(lat_ns: list[int]) -> dict[str, float]:
+    """p50, p99, p99.9 and max of latencies given in ns, in us (an HDR histogram from 1 us to
+    60 s, 3 significant digits); NaN for no latencies."""
     h = HdrHistogram(1, 60_000_000, 3)
     for v in lat_ns:
         h.record_value(max(1, min(v // 1000, 60_000_000)))
@@ -143,7 +145,8 @@ def run_baseline(rate: float, seconds: float, n_cables: int = 8) -> dict[str, An
         if lst is not None:
             lst.close()
     sent = json.loads(out.decode().strip().splitlines()[-1])["sent"]
-    return {"ticks": sent, "received": len(col.seqs), "missed": sent - len(col.seqs), **_percentiles(col.lat)}
+    return {"ticks": sent, "received": len(col.seqs), "missed": sent - len(col.seqs),
+            **latency_percentiles(col.lat)}
 
 
 def _baseline_publisher(port: int, rate: float, seconds: float, n_cables: int) -> None:
@@ -332,8 +335,8 @@ def run_pipeline_baseline(rate: float, seconds: float, *, robot: str = "ipanema3
     col = _Collector()
     run = run_three_processes(rate, seconds, col, robot=robot, fd=fd, encoding=encoding, say=say, passthrough=True)
     sent = int(run["summary"]["ticks_sent"])
-    return {"ticks": sent, "received": len(col.seqs), "missed": sent - len(col.seqs), **_percentiles(col.lat),
-            "daemon_input": run["status"].get("input")}
+    return {"ticks": sent, "received": len(col.seqs), "missed": sent - len(col.seqs),
+            **latency_percentiles(col.lat), "daemon_input": run["status"].get("input")}
 
 
 def run_e2e_bench(rate: float = 1000.0, seconds: float = 60.0, *, robot: str = "ipanema3", fd: bool = True,
@@ -363,7 +366,7 @@ def run_e2e_bench(rate: float = 1000.0, seconds: float = 60.0, *, robot: str = "
         result["pipeline_baseline"] = pipeline
     sent = int(run["summary"]["ticks_sent"])
     result.update(ticks=sent, received=len(col.seqs), missed=sent - len(col.seqs),
-                  controller_overruns=run["summary"].get("overruns"), **_percentiles(col.lat),
+                  controller_overruns=run["summary"].get("overruns"), **latency_percentiles(col.lat),
                   daemon_input=status.get("input"), daemon_latency_us=status.get("latency_us"),
                   daemon_published=status.get("published"), daemon_skipped=status.get("skipped_no_subscriber"),
                   shutdown_s=round(run["shutdown_s"], 3))

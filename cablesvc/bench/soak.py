@@ -33,7 +33,8 @@ import threading
 import time
 from typing import Any, Callable, Optional
 
-from cablesvc.bench.e2e import BENCH_DEADLINE_S, _percentiles, add_setup_options, run_three_processes, run_with_progress
+from cablesvc.bench.e2e import (BENCH_DEADLINE_S, add_setup_options, latency_percentiles, run_three_processes,
+                                 run_with_progress)
 
 __all__ = ["add_parser", "cmd_soak", "read_rss_mb", "run_soak_bench"]
 
@@ -163,12 +164,12 @@ def run_soak_bench(rate: float = 1000.0, minutes: float = 30.0, *, robot: str = 
         got = len(col.seqs.get(k, ()))
         in_minute = [mb for s, mb in samples if s >= k * 60.0 and (s < (k + 1) * 60.0 or k == n_minutes - 1)]
         row = {"minute": k + 1, "ticks": hi - lo, "received": got, "missed": (hi - lo) - got,
-               **_percentiles(lat),
+               **latency_percentiles(lat),
                "rss_mb": round(in_minute[-1], 2) if in_minute else None,
                "rss_max_mb": round(max(in_minute), 2) if in_minute else None}
         per_minute.append(row)
     received = sum(len(s) for s in col.seqs.values())
-    total = _percentiles(all_lat)
+    total = latency_percentiles(all_lat)
     # where the missing ticks are: runs of consecutive seqs never received (first 50 runs)
     got_all = set().union(*col.seqs.values()) if col.seqs else set()
     runs: list[list[int]] = []
