@@ -51,7 +51,7 @@ def long_recording(path: "os.PathLike[str] | str", minutes: float, *, effect: st
     from cablesvc.recording import McapRecordingWriter
     from cablesvc.simulate import TruthConfig, effect_from_spec
     from cablesvc.simulate.truth import TruthModel
-    from cablesvc.simulate.scenarios import (PLANAR_WRENCH_ROWS, ScenarioContext, _ptp_path, platform_wrench,
+    from cablesvc.simulate.scenarios import (PLANAR_WRENCH_ROWS, ScenarioContext, platform_wrench, ptp_path,
                                              rotvec_to_quat, structure_matrix, tension_distribution)
 
     t_start = time.perf_counter()
@@ -69,7 +69,7 @@ def long_recording(path: "os.PathLike[str] | str", minutes: float, *, effect: st
     ext = np.ptp(np.asarray(geom.frame_anchors), axis=0)
     hw = np.array([0.1 * ext[0], 0.1 * ext[1], 0.03 * max(ext[0], ext[1])])
     rmax = np.full(3, math.radians(5.0))
-    P, Rv, _ = _ptp_path(ctx, N, np.zeros(3), hw, rmax, 0.3, math.radians(10.0), 1.0, (0.2, 1.0))
+    P, Rv, _ = ptp_path(ctx, N, np.zeros(3), hw, rmax, 0.3, math.radians(10.0), 1.0, (0.2, 1.0))
     rows = list(PLANAR_WRENCH_ROWS) if geom.planar else list(range(6))
     f_lo = np.maximum(np.asarray(geom.force_min, float), 60.0)
     f_hi = 0.9 * np.asarray(geom.force_max, float)

@@ -48,6 +48,7 @@ __all__ = [
     "hold_trapezoid",
     "hold_triangle",
     "min_jerk",
+    "ptp_path",
     "tension_distribution",
     "trajectory",
     "wave_sine",
@@ -368,8 +369,14 @@ def tension_distribution(AT: np.ndarray, w: np.ndarray, f_lo: Any, f_hi: Any, f_
     return f
 
 
-def _ptp_path(ctx: ScenarioContext, N: int, center: np.ndarray, hw: np.ndarray, rot_max: np.ndarray,
-              speed: float, angular_speed: float, min_move_time: float, dwell: tuple[float, float]):
+def ptp_path(ctx: ScenarioContext, N: int, center: np.ndarray, hw: np.ndarray, rot_max: np.ndarray,
+             speed: float, angular_speed: float, min_move_time: float, dwell: tuple[float, float]):
+    """N ticks of point-to-point moves: dwell a random ``dwell`` [s] range, then a
+    minimum-jerk move to a random point within ``center`` +- ``hw`` [m] and rotation vector
+    within +- ``rot_max`` [rad], with a peak speed of at most ``speed`` [m/s] and
+    ``angular_speed`` [rad/s], lasting at least ``min_move_time`` [s]; random numbers from
+    ``ctx.rng``. Returns (positions (N, 3),
+    rotation vectors (N, 3), waypoints [(t, position, rotation vector)])."""
     rng, rate = ctx.rng, ctx.rate
     P = np.empty((N, 3))
     R = np.empty((N, 3))
@@ -463,7 +470,7 @@ def trajectory(ctx: ScenarioContext, *, kind: str = "ptp", center: Sequence[floa
         raise SimulationError(f"option dwell: expected [min, max] seconds, got {dwell!r}")
     band = (float(frequency_band[0]), float(frequency_band[1]))
     if kind == "ptp":
-        P, Rv, waypoints = _ptp_path(ctx, N, c, hw, rmax, float(speed), math.radians(angular_speed_deg),
+        P, Rv, waypoints = ptp_path(ctx, N, c, hw, rmax, float(speed), math.radians(angular_speed_deg),
                                      float(min_move_time), dw)
     else:
         if not (0 < band[0] <= band[1] < rate / 2) or int(n_sines) < 1:
