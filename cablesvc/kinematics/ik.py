@@ -52,7 +52,7 @@ import numpy as np
 
 from cablesvc.config.robot import RobotGeometry
 from cablesvc.kinematics.ik_layout import (
-    _MONOMIALS,
+    MONOMIALS,
     Layout,
     cable_constants,
     declare_layout,
@@ -256,8 +256,8 @@ class InverseKinematics:
             self._qa = self._qab[: 10 * N]
             self._qb = self._qab[10 * N :]
             nn = np.arange(N)
-            ka = np.array([k for k, _ in _MONOMIALS])
-            kb = np.array([l for _, l in _MONOMIALS])
+            ka = np.array([k for k, _ in MONOMIALS])
+            kb = np.array([l for _, l in MONOMIALS])
             self._qab_idx = np.concatenate(
                 [(nn[None, :] * 4 + ka[:, None]).ravel(), (nn[None, :] * 4 + kb[:, None]).ravel()]
             )

@@ -15,8 +15,8 @@ import numpy as np
 from cablesvc.config.robot import RobotGeometry
 from cablesvc.kinematics.rotation import QUAT_OUTER_TO_MATRIX
 
-__all__ = ["EPS_SWIVEL", "Layout", "cable_constants", "declare_layout", "fill_constants", "gather_indices",
-           "local_matrix", "moment_matrix", "pose_matrix"]
+__all__ = ["EPS_SWIVEL", "MONOMIALS", "Layout", "cable_constants", "declare_layout", "fill_constants",
+           "gather_indices", "local_matrix", "moment_matrix", "pose_matrix"]
 
 #: m; size of the fixed reference direction added to d_perp before normalising.
 EPS_SWIVEL = 1e-12
@@ -27,7 +27,7 @@ _TWO_PI = 2.0 * np.pi
 #: the same guard as adding 1e-300 to its square).
 _NORM_GUARD = 1e-150
 #: Monomials q_k q_l (k <= l, q = [x, y, z, w]) fed to the pose matrix product, in order.
-_MONOMIALS = ((0, 0), (1, 1), (2, 2), (3, 3), (0, 1), (0, 2), (1, 2), (0, 3), (1, 3), (2, 3))
+MONOMIALS = ((0, 0), (1, 1), (2, 2), (3, 3), (0, 1), (0, 2), (1, 2), (0, 3), (1, 3), (2, 3))
 
 
 def swivel_reference(geom: RobotGeometry, e: np.ndarray) -> np.ndarray:
@@ -48,11 +48,11 @@ def swivel_reference(geom: RobotGeometry, e: np.ndarray) -> np.ndarray:
 
 
 def _monomial_map() -> np.ndarray:
-    """(9, 10): flattened R = this @ [q_k q_l / |q|^2 for (k, l) in _MONOMIALS] (unitless),
+    """(9, 10): flattened R = this @ [q_k q_l / |q|^2 for (k, l) in MONOMIALS] (unitless),
     the symmetric form of QUAT_OUTER_TO_MATRIX."""
     T = np.asarray(QUAT_OUTER_TO_MATRIX)
-    M = np.zeros((9, len(_MONOMIALS)))
-    for c, (k, l) in enumerate(_MONOMIALS):
+    M = np.zeros((9, len(MONOMIALS)))
+    for c, (k, l) in enumerate(MONOMIALS):
         M[:, c] = T[4 * k + l] + (T[4 * l + k] if k != l else 0.0)
     return M
 
