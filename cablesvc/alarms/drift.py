@@ -25,8 +25,9 @@ the cable's state does not change):
    k = ``cusum_k_n`` (half the smallest offset worth detecting). The last time a side was
    zero estimates when the change started; the mean of z since then estimates its size.
 5. **Raise** when S+ or S- exceeds h = ``cusum_h_ns`` continuously for ``raise_hold_s``
-   (a hold or warm-up timer that started after the current t, i.e. the controller clock
-   restarted or an older snapshot was restored, restarts at t).
+   (the hold timers are the state alarms' :func:`~cablesvc.alarms.state.hold_rows`; a hold
+   or warm-up timer that started after the current t, i.e. the controller clock restarted
+   or an older snapshot was restored, restarts at t).
    The event carries ``since`` (change start), ``offset_n`` (the larger in magnitude of the
    mean of z since the change start and the EWMA: right for a step and for a ramp).
 6. **Clear** when |e| < ``clear_n`` (< k: hysteresis) continuously for ``clear_hold_s``;
@@ -54,6 +55,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from cablesvc.alarms import DRIFT_SUGGESTED_ACTION, AlarmEvent, jit_inline, jit_kernel
 from cablesvc.alarms.residual import (RUN_SIGNATURE, STEP_SIGNATURE, ResidualDetector, ewma_gain, sample_dt,
                                       block_samples, tick_samples)
+from cablesvc.alarms.state import hold_rows
 
 __all__ = ["DriftConfig", "DriftDetector"]
 
@@ -178,62 +180,45 @@ def _drift_sample(S, P, t, r, i, E, ne, row):
     _cusum_side(S, i, t, (zc - k) * dt, z, dt, _CU, _CU_T0, _CU_SZ, _CU_ST)     # upper: offsets > k
     _cusum_side(S, i, t, (-zc - k) * dt, z, dt, _CL, _CL_T0, _CL_SZ, _CL_ST)    # lower: offsets < -k
     h = P[_P_H]
-    if S[_ACTIVE, i] == 0.0:
-        if S[_CU, i] > h or S[_CL, i] > h:
-            # not pending (NaN), or the clock went back: (re)start the timer
-            if S[RAISE_SINCE, i] != S[RAISE_SINCE, i] or t < S[RAISE_SINCE, i]:
-                S[RAISE_SINCE, i] = t
-            if t - S[RAISE_SINCE, i] >= P[_P_RAISE_HOLD]:
-                if S[_CU, i] >= S[_CL, i]:
-                    side = 1.0
-                    since = S[_CU_T0, i]
-                    mean = S[_CU_SZ, i] / S[_CU_ST, i] if S[_CU_ST, i] > 0.0 else z
-                else:
-                    side = -1.0
-                    since = S[_CL_T0, i]
-                    mean = S[_CL_SZ, i] / S[_CL_ST, i] if S[_CL_ST, i] > 0.0 else z
-                e = S[_EWMA, i]
-                offset = mean
-                if abs(e) > abs(mean) and e * side > 0.0:
-                    offset = e
-                S[_ACTIVE, i] = 1.0
-                S[_SIDE, i] = side
-                S[_SINCE, i] = since
-                S[_OFFSET, i] = offset
-                S[RAISE_SINCE, i] = _NAN
-                S[_CLEAR_SINCE, i] = _NAN
-                E[ne, _E_ROW] = row
-                E[ne, _E_CABLE] = i
-                E[ne, _E_ACTION] = 1.0
-                E[ne, _E_SIDE] = side
-                E[ne, _E_SINCE] = since
-                E[ne, _E_OFFSET] = offset
-                E[ne, _E_EWMA] = e
-                E[ne, _E_BASE] = S[_BASE, i]
-                ne += 1
+    a = hold_rows(S, i, t, S[_CU, i] > h or S[_CL, i] > h, abs(S[_EWMA, i]) < P[_P_CLEAR],
+                  P[_P_RAISE_HOLD], P[_P_CLEAR_HOLD], _ACTIVE, RAISE_SINCE, _CLEAR_SINCE, _SINCE)
+    if a > 0:
+        if S[_CU, i] >= S[_CL, i]:
+            side = 1.0
+            since = S[_CU_T0, i]
+            mean = S[_CU_SZ, i] / S[_CU_ST, i] if S[_CU_ST, i] > 0.0 else z
         else:
-            S[RAISE_SINCE, i] = _NAN
-    else:
-        if abs(S[_EWMA, i]) < P[_P_CLEAR]:
-            # not pending (NaN), or the clock went back: (re)start the timer
-            if S[_CLEAR_SINCE, i] != S[_CLEAR_SINCE, i] or t < S[_CLEAR_SINCE, i]:
-                S[_CLEAR_SINCE, i] = t
-            if t - S[_CLEAR_SINCE, i] >= P[_P_CLEAR_HOLD]:
-                E[ne, _E_ROW] = row
-                E[ne, _E_CABLE] = i
-                E[ne, _E_ACTION] = -1.0
-                E[ne, _E_SIDE] = S[_SIDE, i]
-                E[ne, _E_SINCE] = S[_SINCE, i]
-                E[ne, _E_OFFSET] = S[_EWMA, i]
-                E[ne, _E_EWMA] = S[_EWMA, i]
-                E[ne, _E_BASE] = S[_BASE, i]
-                ne += 1
-                S[_ACTIVE, i] = 0.0
-                S[_SIDE, i] = 0.0
-                S[_CLEAR_SINCE, i] = _NAN
-                _restart_cusum(S, i, t)
-        else:
-            S[_CLEAR_SINCE, i] = _NAN
+            side = -1.0
+            since = S[_CL_T0, i]
+            mean = S[_CL_SZ, i] / S[_CL_ST, i] if S[_CL_ST, i] > 0.0 else z
+        e = S[_EWMA, i]
+        offset = mean
+        if abs(e) > abs(mean) and e * side > 0.0:
+            offset = e
+        S[_SIDE, i] = side
+        S[_SINCE, i] = since                     # the change start (its CUSUM run), not the hold's
+        S[_OFFSET, i] = offset
+        E[ne, _E_ROW] = row
+        E[ne, _E_CABLE] = i
+        E[ne, _E_ACTION] = 1.0
+        E[ne, _E_SIDE] = side
+        E[ne, _E_SINCE] = since
+        E[ne, _E_OFFSET] = offset
+        E[ne, _E_EWMA] = e
+        E[ne, _E_BASE] = S[_BASE, i]
+        ne += 1
+    elif a < 0:
+        E[ne, _E_ROW] = row
+        E[ne, _E_CABLE] = i
+        E[ne, _E_ACTION] = -1.0
+        E[ne, _E_SIDE] = S[_SIDE, i]
+        E[ne, _E_SINCE] = S[_SINCE, i]
+        E[ne, _E_OFFSET] = S[_EWMA, i]
+        E[ne, _E_EWMA] = S[_EWMA, i]
+        E[ne, _E_BASE] = S[_BASE, i]
+        ne += 1
+        S[_SIDE, i] = 0.0
+        _restart_cusum(S, i, t)
     return ne
 
 

@@ -108,37 +108,49 @@ _E_CH, _E_ACTION, _E_SINCE, _E_VALUE, _E_LIMIT = range(5)
 
 
 @jit_inline
-def hold(ST, c, t, raise_cond, clear_cond, raise_hold, clear_hold):
-    """Hold-time state machine of channel c at time t: +1 raised, -1 cleared, 0 nothing.
+def hold_rows(ST, c, t, raise_cond, clear_cond, raise_hold, clear_hold, active, raise_since, clear_since, since):
+    """Hold-time state machine of channel c at time t, on the state rows ``active`` (1 while
+    raised), ``raise_since`` / ``clear_since`` (start of a pending raise / clear, NaN when
+    none) and ``since`` (start of the raised alarm): +1 raised, -1 cleared, 0 nothing.
 
-    A pending raise/clear whose start lies after t (the controller clock restarted, or a
-    snapshot of an older run was restored) restarts its hold timer at t; otherwise a timer
-    from the old time base would hold the alarm back for the old uptime."""
-    if ST[ACTIVE, c] == 0.0:
+    A raise needs ``raise_cond`` for ``raise_hold`` [s], a clear ``clear_cond`` for
+    ``clear_hold`` [s]; the condition failing once drops the pending timer. A pending
+    raise/clear whose start lies after t (the controller clock restarted, or a snapshot of
+    an older run was restored) restarts its hold timer at t; otherwise a timer from the old
+    time base would hold the alarm back for the old uptime."""
+    if ST[active, c] == 0.0:
         if raise_cond:
             # not pending (NaN), or the clock went back: (re)start the timer
-            if ST[RAISE_SINCE, c] != ST[RAISE_SINCE, c] or t < ST[RAISE_SINCE, c]:
-                ST[RAISE_SINCE, c] = t
-            if t - ST[RAISE_SINCE, c] >= raise_hold:
-                ST[ACTIVE, c] = 1.0
-                ST[SINCE, c] = ST[RAISE_SINCE, c]
-                ST[RAISE_SINCE, c] = math.nan
-                ST[CLEAR_SINCE, c] = math.nan
+            if ST[raise_since, c] != ST[raise_since, c] or t < ST[raise_since, c]:
+                ST[raise_since, c] = t
+            if t - ST[raise_since, c] >= raise_hold:
+                ST[active, c] = 1.0
+                ST[since, c] = ST[raise_since, c]
+                ST[raise_since, c] = math.nan
+                ST[clear_since, c] = math.nan
                 return 1
         else:
-            ST[RAISE_SINCE, c] = math.nan
+            ST[raise_since, c] = math.nan
     else:
         if clear_cond:
             # not pending (NaN), or the clock went back: (re)start the timer
-            if ST[CLEAR_SINCE, c] != ST[CLEAR_SINCE, c] or t < ST[CLEAR_SINCE, c]:
-                ST[CLEAR_SINCE, c] = t
-            if t - ST[CLEAR_SINCE, c] >= clear_hold:
-                ST[ACTIVE, c] = 0.0
-                ST[CLEAR_SINCE, c] = math.nan
+            if ST[clear_since, c] != ST[clear_since, c] or t < ST[clear_since, c]:
+                ST[clear_since, c] = t
+            if t - ST[clear_since, c] >= clear_hold:
+                ST[active, c] = 0.0
+                ST[clear_since, c] = math.nan
                 return -1
         else:
-            ST[CLEAR_SINCE, c] = math.nan
+            ST[clear_since, c] = math.nan
     return 0
+
+
+@jit_inline
+def hold(ST, c, t, raise_cond, clear_cond, raise_hold, clear_hold):
+    """:func:`hold_rows` on the state alarms' rows (ACTIVE, RAISE_SINCE, CLEAR_SINCE, SINCE),
+    which the spread detector's state starts with as well."""
+    return hold_rows(ST, c, t, raise_cond, clear_cond, raise_hold, clear_hold, ACTIVE, RAISE_SINCE, CLEAR_SINCE,
+                     SINCE)
 
 
 @jit_inline
