@@ -24,15 +24,14 @@ import numpy as np
 import pytest
 import zenoh
 
-from cablesvc.cli.main import build_parser
-from cablesvc.cli.run_fleet import plan_fleet
-from cablesvc.config.daemon import FleetConfigError
+from cablesvc.config.daemon import FleetConfigError, RunOverrides, fleet_config
 from cablesvc.config.params import nominal_params
 from cablesvc.config import load_robot
 from cablesvc.recording import read_recording, write_recording
 from cablesvc.service.daemon import DaemonOptions
 from cablesvc.service.snapshot import read_snapshot
 from cablesvc.service.fleet import Fleet, FleetError, FleetStartError
+from cablesvc.service.plan import plan_fleet
 from cablesvc.service.zenoh_io import Listener, Publisher, keys, make_config
 from cablesvc.simulate import simulate_recording
 from cablesvc.netutil import free_tcp_port
@@ -180,12 +179,10 @@ speed = 1.0
 
 # ---- fleet configs ----------------------------------------------------------------------
 
-def _plan(tmp_path: Path, text: str, *flags: str):
-    cfg = tmp_path / "fleet.toml"
-    cfg.write_text(text)
+def _plan(text: str):
+    """What ``cablesvc run --config fleet.toml --no-view`` plans from ``text``."""
     import tomllib
-    args = build_parser().parse_args(["run", "--config", str(cfg), "--no-view", *flags])
-    return plan_fleet(args, tomllib.loads(text), "fleet.toml")
+    return plan_fleet(fleet_config(tomllib.loads(text), "fleet.toml"), "fleet.toml", RunOverrides())
 
 
 def test_fleet_config_errors_name_the_file_and_the_entry(tmp_path: Path):
@@ -198,7 +195,7 @@ def test_fleet_config_errors_name_the_file_and_the_entry(tmp_path: Path):
         return (f"[[robots]]\nrobot = \"{robot}\"\n{extra}\n[robots.source]\nkind = \"replay\"\n"
                 f"path = {_toml_str(path)}\nspeed = 0\n")
 
-    shared, plans = _plan(tmp_path, "listen = [\"tcp/127.0.0.1:7999\"]\n" + entry("ipanema3", rec) + entry("planar4", p4))
+    shared, plans = _plan("listen = [\"tcp/127.0.0.1:7999\"]\n" + entry("ipanema3", rec) + entry("planar4", p4))
     assert [p.options.robot.name for p in plans] == ["ipanema3", "planar4"] and shared["listen"] == (
         "tcp/127.0.0.1:7999",)
     assert [p.where for p in plans] == ["robots[0]", "robots[1]"]
@@ -228,9 +225,14 @@ def test_fleet_config_errors_name_the_file_and_the_entry(tmp_path: Path):
     ]
     for text, pattern in cases:
         with pytest.raises(FleetConfigError, match=pattern):
-            _plan(tmp_path, text)
-    with pytest.raises(FleetConfigError, match=r"fleet\.toml: --replay configure"):
-        _plan(tmp_path, entry("planar4", p4), "--replay", str(rec))
+            _plan(text)
+    # a flag that configures one robot does not apply to a fleet config: one line, exit 1
+    cfg = tmp_path / "fleet.toml"
+    cfg.write_text(entry("planar4", p4))
+    r = subprocess.run([sys.executable, "-m", "cablesvc", "run", "--config", str(cfg), "--no-view", "--replay", str(rec)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1 and re.search(r"fleet\.toml: --replay configure", r.stderr), r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
 
 
 def test_the_shipped_fleet_example_is_a_valid_fleet_config():
@@ -244,8 +246,7 @@ def test_the_shipped_fleet_example_is_a_valid_fleet_config():
         e.pop("params", None)                      # /etc/cablesvc/...: written by `cablesvc identify` on site
     assert cfg["robots"][1]["source"]["kind"] == "modbus"
     cfg["robots"][1]["source"]["register_map"] = str(example.parents[1] / "robots" / "ipanema3.modbus.toml")
-    args = build_parser().parse_args(["run", "--config", str(example), "--no-view"])
-    shared, plans = plan_fleet(args, cfg, "fleet.example.toml")
+    shared, plans = plan_fleet(fleet_config(cfg, "fleet.example.toml"), "fleet.example.toml", RunOverrides())
     assert shared["listen"] == ("tcp/127.0.0.1:7447",) and shared["encoding"] == "json"
     assert [p.options.robot.name for p in plans] == ["ipanema3", "cogiro"]
     assert [p.options.source["kind"] for p in plans] == ["can", "modbus"]

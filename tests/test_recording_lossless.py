@@ -325,9 +325,8 @@ def test_fleet_refuses_a_record_file_that_is_a_replay_input(tmp_path: Path, repl
     import json as _json
     import tomllib
 
-    from cablesvc.cli.main import build_parser
-    from cablesvc.cli.run_fleet import plan_fleet
-    from cablesvc.config.daemon import FleetConfigError
+    from cablesvc.config.daemon import FleetConfigError, RunOverrides, fleet_config
+    from cablesvc.service.plan import plan_fleet
 
     path, _ = replay_file
     a = tmp_path / "a.mcap"
@@ -339,9 +338,8 @@ def test_fleet_refuses_a_record_file_that_is_a_replay_input(tmp_path: Path, repl
             f'[[robots]]\nrobot = "planar4"\nrecord = {_json.dumps(str(tmp_path / "sub" / ".." / "a.mcap"))}\n'
             f'[robots.source]\nkind = "replay"\npath = {_json.dumps(str(p4))}\n')
     (tmp_path / "sub").mkdir()
-    args = build_parser().parse_args(["run", "--config", "fleet.toml", "--no-view"])
     with pytest.raises(FleetConfigError, match=r"robots\[1\]\.record: .* is robots\[0\]'s replay input"):
-        plan_fleet(args, tomllib.loads(text), "fleet.toml")
+        plan_fleet(fleet_config(tomllib.loads(text), "fleet.toml"), "fleet.toml", RunOverrides())
     from cablesvc.service.daemon import StartError
     robot = load_robot("ipanema3")
     with pytest.raises(StartError, match="--replay input"):

@@ -83,7 +83,7 @@ def test_simulate_within_the_limits_still_runs(tmp_path):
 @pytest.mark.parametrize("rate", ["1e9", "20000"])
 def test_run_refuses_a_sim_rate_beyond_what_the_daemon_can_follow(rate):
     """f640b8f: `run --rate 1e9` tried to allocate 224 GiB and died with a traceback."""
-    from cablesvc.cli.limits import MAX_LIVE_RATE_HZ
+    from cablesvc.limits import MAX_LIVE_RATE_HZ
 
     err = _one_line_refusal(cli("run", "--rate", rate, "--no-view", "--no-snapshot", "--seconds", "2",
                                 "--listen", f"tcp/127.0.0.1:{free_tcp_port()}", timeout=60), "--rate")
@@ -108,7 +108,7 @@ def test_beam_refuses_a_run_that_cannot_fit_in_memory(tmp_path, action, args):
 
 
 def test_memory_estimates_follow_the_sizes():
-    from cablesvc.cli.limits import beam_bytes, memory_problem, twin_bytes
+    from cablesvc.limits import beam_bytes, memory_problem, twin_bytes
 
     assert beam_bytes(4, 480, 2, 24) == pytest.approx(2 * beam_bytes(4, 240, 2, 24), rel=0.01)
     assert twin_bytes(2000, 8) == 2 * twin_bytes(1000, 8) == 8 * twin_bytes(1000, 2)

@@ -89,9 +89,9 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 def _size_problem(args: argparse.Namespace, lanes: int) -> str | None:
     """Why the run cannot fit in memory (``--steps`` x ``--cycles`` x ``--elements`` for
-    ``lanes`` loops solved together; cablesvc.cli.limits), or None: checked before the
+    ``lanes`` loops solved together; cablesvc.limits), or None: checked before the
     solver allocates anything."""
-    from cablesvc.cli.limits import beam_bytes, memory_problem
+    from cablesvc.limits import beam_bytes, memory_problem
 
     return memory_problem(f"--steps {args.steps} x --cycles {args.cycles} x --elements {args.elements} "
                           f"for {lanes} loop(s)", beam_bytes(lanes, args.steps, args.cycles, args.elements))

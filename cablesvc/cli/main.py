@@ -78,10 +78,10 @@ def cmd_simulate(args) -> int:
 
 def _twin_size_problem(args, n_cables: int) -> str | None:
     """``--rate`` / ``--duration`` that are not finite and > 0, or whose run would not fit
-    in memory (cablesvc.cli.limits): checked before the twin allocates anything."""
+    in memory (cablesvc.limits): checked before the twin allocates anything."""
     import math
 
-    from cablesvc.cli.limits import TWIN_DEFAULT_DURATION_MAX_S, memory_problem, twin_bytes
+    from cablesvc.limits import TWIN_DEFAULT_DURATION_MAX_S, memory_problem, twin_bytes
 
     for flag, v in (("--rate", args.rate), ("--duration", args.duration)):
         if v is not None and not (math.isfinite(v) and v > 0):

@@ -5,16 +5,14 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
 import signal
 import sys
 import threading
 import time
-from pathlib import Path
 from typing import Any
 
 from cablesvc.cli.failures import UsageError, zenoh_failure
-from cablesvc.cli.run_fleet import run_fleet, zenoh_settings, zenoh_where
+from cablesvc.cli.run_fleet import run_fleet, run_overrides
 from cablesvc.cli.run_session import (
     StartupInterrupted,
     hup_during_startup,
@@ -23,9 +21,16 @@ from cablesvc.cli.run_session import (
     view,
     wait_until_stopped,
 )
-from cablesvc.cli.run_sim import sim_controller, sim_rate_problem, sim_source_id
-from cablesvc.config.daemon import daemon_config, is_endpoint, is_fleet_config, load_config, seconds_ok
-from cablesvc.errors import ConfigError, SourceError
+from cablesvc.config.daemon import (
+    RobotOverrides,
+    daemon_config,
+    is_endpoint,
+    is_fleet_config,
+    load_config,
+    seconds_ok,
+    zenoh_where,
+)
+from cablesvc.errors import ConfigError
 
 DESCRIPTION = """\
 Run the live cable-force predictor beside a robot controller.
@@ -194,10 +199,8 @@ def cmd_run(args) -> int:
 def _cmd_run(args) -> int:
     import zenoh
 
-    from cablesvc.config import load_robot
-    from cablesvc.config.params import load_params, nominal_params
-    from cablesvc.service.daemon import Daemon, DaemonOptions
-    from cablesvc.service.snapshot import default_snapshot_path
+    from cablesvc.service.daemon import Daemon
+    from cablesvc.service.plan import plan_daemon
 
     logging.basicConfig(level=getattr(logging, str(args.log_level).upper(), logging.INFO),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
@@ -208,60 +211,14 @@ def _cmd_run(args) -> int:
     if is_fleet_config(raw):
         return run_fleet(args, raw, str(args.config))
     cfg = daemon_config(raw, str(args.config))
-    shared = zenoh_settings(args, cfg)
-    robot = load_robot(args.robot or cfg.robot or "ipanema3")
-    geom = robot.geometry()
-    params_file = args.params or cfg.params
-    params = load_params(params_file) if params_file else nominal_params(geom)
-    if params.robot and params.robot != robot.name:
-        raise ConfigError(f"{params.source} was identified for robot {params.robot!r}, not {robot.name!r}")
     src = source_config(args, raw.get("source"))
-    controller = None
-    if src["kind"] == "sim":
-        from cablesvc.sources import SourceConfigError
-        sim = {k: src.pop(k) for k in ("scenario", "rate", "seed") if k in src}
-        scenario = args.scenario if args.scenario is not None else sim.get("scenario")
-        rate = args.rate if args.rate is not None else sim.get("rate")
-        seed = args.seed if args.seed is not None else sim.get("seed")
-        if why := sim_rate_problem(rate, robot.n_cables):
-            raise UsageError(f"{'--' if args.rate is not None else 'source.'}{why}")
-        try:
-            controller, src = sim_controller(robot, src, scenario=scenario, rate=rate, seed=seed,
-                                             channel=src.get("channel") or f"cablesvc-sim-{os.getpid()}")
-        except (SourceConfigError, ValueError, TypeError, KeyError) as e:
-            # no DBC for this robot, an unknown scenario, a bad rate in the config: one line
-            msg = e.args[0] if isinstance(e, KeyError) and e.args else e
-            raise SourceError(f"cannot start the simulated controller (source sim) for robot {robot.name!r}: "
-                              f"{msg}") from None
-    elif args.scenario is not None or args.rate is not None or args.seed is not None:
+    if src["kind"] != "sim" and (args.scenario is not None or args.rate is not None or args.seed is not None):
         raise UsageError("--scenario, --rate and --seed apply to --source sim only")
-    snapshot = None
-    if not args.no_snapshot:
-        # the default state file is the live robot's: a replay or the embedded simulator (a
-        # new simulated controller at every start) uses one only when given one
-        live = controller is None and src["kind"] != "replay"
-        snapshot = args.snapshot or cfg.snapshot or (default_snapshot_path(robot.name) if live else None)
-        snapshot = Path(snapshot) if snapshot else None
-    if args.snapshot_interval is not None:
-        interval = args.snapshot_interval
-    else:
-        interval = 5.0 if cfg.snapshot_interval is None else cfg.snapshot_interval
-    opts = DaemonOptions(
-        robot=robot, params=params, source=src,
-        zenoh_config_file=shared["zenoh_config_file"],
-        listen=shared["listen"],
-        connect=shared["connect"],
-        encoding=shared["encoding"],
-        record=Path(args.record or cfg.record) if (args.record or cfg.record) else None,
-        snapshot=snapshot,
-        snapshot_interval_s=float(interval),
-        alarm_config=cfg.alarms,
-        wait_subscriber_s=args.wait_subscriber,
-        record_overwrite=bool(getattr(args, "overwrite", False)),
-        record_encoding=getattr(args, "record_encoding", None) or "protobuf",
-        source_id=None if controller is None else sim_source_id(robot.name),
-        params_file=str(params_file) if params_file else None,
-    )
+    one = RobotOverrides(robot=args.robot, params=args.params, record=args.record, snapshot=args.snapshot,
+                         scenario=args.scenario, rate=args.rate, seed=args.seed)
+    shared, plan = plan_daemon(cfg, src, run_overrides(args), one)
+    opts, controller = plan.options, plan.controller
+    robot, params, src = opts.robot, opts.params, opts.source
     stop = threading.Event()
 
     def on_signal(signum, frame):
@@ -300,7 +257,7 @@ def _cmd_run(args) -> int:
         if args.no_view:
             wait_until_stopped(worker.is_alive, stop, deadline)
         else:
-            view([(daemon, robot, geom)], stop, worker.is_alive, deadline)
+            view([(daemon, robot, daemon.geom)], stop, worker.is_alive, deadline)
     finally:
         stop.set()
         t0 = time.monotonic()

@@ -16,6 +16,12 @@ check the file's shape only: nothing is loaded or opened here. A file that does 
 is a :class:`FleetConfigError` whose message names the file and the entry
 (``fleet.toml: robots[1].source.kind: ...``); :func:`load_config` reads a file and
 :func:`daemon_config` / :func:`fleet_config` check a parsed one.
+
+What the command line says on top of a file is :class:`RunOverrides` (the settings every
+robot of the daemon shares: Zenoh, snapshots, recording) and, for a single robot,
+:class:`RobotOverrides`; :func:`zenoh_settings` merges the Zenoh keys. The planner
+(:mod:`cablesvc.service.plan`) turns a checked config and its overrides into what the
+daemon runs.
 """
 
 from __future__ import annotations
@@ -41,7 +47,8 @@ from cablesvc.errors import ConfigError
 
 __all__ = ["FleetConfigError", "DaemonConfig", "FleetConfig", "RobotEntry", "SimSource", "ZenohSettings",
            "SHARED_KEYS", "ROBOT_KEYS", "SIM_KEYS", "SINGLE_SIM_KEYS", "SOURCE_KINDS", "load_config",
-           "is_fleet_config", "daemon_config", "fleet_config", "is_endpoint", "seconds_ok"]
+           "is_fleet_config", "daemon_config", "fleet_config", "is_endpoint", "seconds_ok", "RunOverrides",
+           "RobotOverrides", "zenoh_settings", "zenoh_where"]
 
 #: the Zenoh keys: one session for the whole daemon (top of a fleet config)
 SHARED_KEYS = ("zenoh_config", "listen", "connect", "encoding")
@@ -329,3 +336,58 @@ def load_config(path: str | None) -> dict[str, Any]:
         raise FleetConfigError(f"{path}: not valid TOML: {e}") from None
     except OSError as e:
         raise FleetConfigError(f"cannot read config file {path}: {e.strerror or e}") from None
+
+
+class RunOverrides(BaseModel):
+    """What the command line sets on top of a daemon or fleet config, for every robot of the
+    daemon: the Zenoh keys (``zenoh_config``, ``listen``, ``connect``, ``encoding``; None:
+    the file's), the snapshot interval [s] (None: the file's, else 5 s), ``no_snapshot``
+    (neither restore nor write the hysteresis state), ``wait_subscriber`` [s] (wait for a
+    forces subscriber before reading the source), and the recording's ``overwrite`` and
+    ``record_encoding`` (protobuf or json). ``cablesvc run`` checks its flags' values before
+    it builds this (one line naming the flag)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    zenoh_config: Optional[str] = None
+    listen: Optional[tuple[str, ...]] = None
+    connect: Optional[tuple[str, ...]] = None
+    encoding: Optional[Literal["json", "compact"]] = None
+    snapshot_interval: Optional[float] = None
+    no_snapshot: bool = False
+    wait_subscriber: float = 0.0
+    overwrite: bool = False
+    record_encoding: Literal["protobuf", "json"] = "protobuf"
+
+
+class RobotOverrides(BaseModel):
+    """What the command line sets on top of a single-robot daemon config: the ``robot``,
+    ``params``, ``record`` and ``snapshot`` files and the embedded simulated controller's
+    ``scenario``, ``rate`` [Hz] and ``seed`` (None: the file's, else the defaults). A fleet
+    config takes none of these (each [[robots]] entry says them)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    robot: Optional[str] = None
+    params: Optional[str] = None
+    record: Optional[str] = None
+    snapshot: Optional[str] = None
+    scenario: Optional[str] = None
+    rate: Optional[float] = None
+    seed: Optional[int] = None
+
+
+def zenoh_settings(z: ZenohSettings, run: RunOverrides) -> dict[str, Any]:
+    """The shared Zenoh settings, the overrides first: ``zenoh_config_file``, ``listen``,
+    ``connect`` (None: not given) and ``encoding``. The file's values were checked by
+    :class:`ZenohSettings` even where an override replaces them: a bad file is a bad file."""
+    listen = run.listen or z.listen
+    connect = run.connect or z.connect
+    return {"zenoh_config_file": run.zenoh_config or z.zenoh_config,
+            "listen": tuple(listen) if listen else None, "connect": tuple(connect) if connect else None,
+            "encoding": run.encoding or z.encoding}
+
+
+def zenoh_where(shared: dict[str, Any]) -> str:
+    """Where the Zenoh session was to be opened, for a message: its config file or endpoints."""
+    return shared["zenoh_config_file"] or f"listen {', '.join(shared['listen'] or ('tcp/127.0.0.1:7447',))}"

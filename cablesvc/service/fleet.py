@@ -24,7 +24,7 @@ and :class:`FleetStartError` names the robot that failed.
 
 The TOML form (``cablesvc run --config fleet.toml``, ``[[robots]]`` tables) is
 checked by :class:`cablesvc.config.daemon.FleetConfig` and planned by
-:mod:`cablesvc.cli.run_fleet`; ``deploy/fleet.example.toml`` is an example.
+:func:`cablesvc.service.plan.plan_fleet`; ``deploy/fleet.example.toml`` is an example.
 """
 
 from __future__ import annotations

@@ -1,6 +1,8 @@
 """The embedded simulated controller of ``cablesvc run`` (``[source] kind = "sim"``, the
-default): a digital twin of the robot sending on a virtual CAN bus that the daemon reads
-through the CAN source. Its configuration is :class:`cablesvc.config.daemon.SimSource`."""
+default): a digital twin of the robot (:class:`cablesvc.sources.simulated.CanController`)
+sending on a virtual CAN bus that the daemon reads through the CAN source. Its
+configuration is :class:`cablesvc.config.daemon.SimSource`; the daemon's planner
+(:mod:`cablesvc.service.plan`) checks its rate and builds it here."""
 
 from __future__ import annotations
 
@@ -29,9 +31,9 @@ def sim_controller(robot, src: dict[str, Any], *, scenario: str | None, rate: fl
 
 def sim_rate_problem(rate: Any, n_cables: int) -> str | None:
     """Why the embedded controller cannot tick at ``rate`` [Hz] (None: the default), or None:
-    above the rate the daemon's kernel can follow (cablesvc.cli.limits.MAX_LIVE_RATE_HZ), or
+    above the rate the daemon's kernel can follow (cablesvc.limits.MAX_LIVE_RATE_HZ), or
     more memory than there is for the motion it precomputes. Checked before it is built."""
-    from cablesvc.cli.limits import MAX_LIVE_RATE_HZ, SIM_CONTROLLER_SECONDS, memory_problem, twin_bytes
+    from cablesvc.limits import MAX_LIVE_RATE_HZ, SIM_CONTROLLER_SECONDS, memory_problem, twin_bytes
 
     if rate is None:
         return None
@@ -39,7 +41,7 @@ def sim_rate_problem(rate: Any, n_cables: int) -> str | None:
         return f"rate: expected a tick rate in Hz > 0 (a finite number), got {rate!r}"
     if rate > MAX_LIVE_RATE_HZ:
         return (f"rate {rate:g} Hz: the daemon's kernel cannot follow a controller faster than {MAX_LIVE_RATE_HZ} Hz "
-                "(half a tick at its fastest measured 53 us per tick; cablesvc/cli/limits.py)")
+                "(half a tick at its fastest measured 53 us per tick; cablesvc/limits.py)")
     return memory_problem(f"rate {rate:g} Hz x the {SIM_CONTROLLER_SECONDS:g} s the simulated controller precomputes",
                           twin_bytes(rate * SIM_CONTROLLER_SECONDS, n_cables))
 

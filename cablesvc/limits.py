@@ -1,4 +1,5 @@
-"""Resource limits of the command line, checked before anything is allocated.
+"""Resource limits of the commands and of the daemon's embedded controller, checked before
+anything is allocated.
 
 A rate, step count or duration is turned into the memory the command would take, with
 the per-item costs below, and refused (one line naming the flag, non-zero exit) when that
@@ -30,7 +31,7 @@ TWIN_BYTES_PER_TICK_CABLE = 4700
 TWIN_DEFAULT_DURATION_MAX_S = 60.0
 
 #: seconds of twin motion the embedded controller of ``cablesvc run`` precomputes
-#: (cablesvc.cli.run_sim.sim_controller)
+#: (cablesvc.sources.sim_controller.sim_controller)
 SIM_CONTROLLER_SECONDS = 10.0
 
 #: The daemon's kernel needs about 80 numpy calls a tick (docs/performance.md: IK 20,
