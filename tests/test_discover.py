@@ -3,7 +3,6 @@ check, the open library, locate, report/CLI and a small bench run."""
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import numpy as np
@@ -176,14 +175,10 @@ def test_noise_floor_and_change_points_on_synthetic():
 
 
 def test_cli_report_json_and_params(tmp_path):
-    from cablesvc.cli import discover_cmd
+    from cablesvc.cli.main import main
     _rec(["offset_gain:0.8@1"], path=tmp_path / "r.mcap")
-    ap = argparse.ArgumentParser()
-    sub = ap.add_subparsers()
-    discover_cmd.add_parser(sub)
-    a = ap.parse_args(["discover", "--robot", ROBOT, "--exact-baseline", str(tmp_path / "r.mcap"), "--report", str(tmp_path / "rep"),
-                       "--out", str(tmp_path / "p.toml")])
-    assert a.func(a) == 0
+    assert main(["discover", "--robot", ROBOT, "--exact-baseline", str(tmp_path / "r.mcap"), "--report",
+                 str(tmp_path / "rep"), "--out", str(tmp_path / "p.toml")]) == 0
     for f in ("discovery.json", "index.html", "rmse.png", "overlay.png", "term_offset_gain.png", "params.toml"):
         assert (tmp_path / "rep" / f).stat().st_size > 0
     doc = json.loads((tmp_path / "rep" / "discovery.json").read_text())
@@ -191,8 +186,7 @@ def test_cli_report_json_and_params(tmp_path):
     p = load_params(tmp_path / "p.toml")
     assert p.identification["discovered_terms"] == ["offset_gain"]
     assert p.identification["term_offset_gain"]["o"][1] == pytest.approx(0.8, abs=0.15)
-    bad = ap.parse_args(["discover", "--robot", ROBOT, str(tmp_path / "missing.mcap")])
-    assert bad.func(bad) == 1
+    assert main(["discover", "--robot", ROBOT, str(tmp_path / "missing.mcap")]) == 1
 
 
 def test_bench_small_run():

@@ -4,7 +4,6 @@ sensor error from a cable-model error, the verdict line and ``--calib``."""
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import numpy as np
@@ -148,23 +147,18 @@ def test_equilibrium_reports_when_the_forces_do_not_balance():
 
 
 def test_cli_calib_identifies_then_discovers_and_prints_the_verdict_first(tmp_path, capsys):
-    from cablesvc.cli import discover_cmd
+    from cablesvc.cli.main import main
     simulate_recording(ROBOT, "hold-sine", tmp_path / "calib.mcap", truth=TruthConfig(noise_std=0.1),
                        duration=None, rate=100, seed=2)
     _rec(["creep:1.0@2"], seed=4, path=tmp_path / "r.mcap")
-    ap = argparse.ArgumentParser()
-    discover_cmd.add_parser(ap.add_subparsers())
-    a = ap.parse_args(["discover", "--robot", ROBOT, "--calib", str(tmp_path / "calib.mcap"), str(tmp_path / "r.mcap"),
-                       "--json"])
-    assert a.func(a) == 0
+    assert main(["discover", "--robot", ROBOT, "--calib", str(tmp_path / "calib.mcap"), str(tmp_path / "r.mcap"),
+                 "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["mode"] == "identified" and doc["verdict"].startswith("verdict: ")
     assert doc["baseline"]["model"] == "amplitude"
-    a = ap.parse_args(["discover", "--robot", ROBOT, "--calib", str(tmp_path / "calib.mcap"), str(tmp_path / "r.mcap")])
-    assert a.func(a) == 0
+    assert main(["discover", "--robot", ROBOT, "--calib", str(tmp_path / "calib.mcap"), str(tmp_path / "r.mcap")]) == 0
     assert capsys.readouterr().out.splitlines()[0].startswith("verdict: ")
-    bad = ap.parse_args(["discover", "--robot", ROBOT, "--calib", str(tmp_path / "nope.mcap"), str(tmp_path / "r.mcap")])
-    assert bad.func(bad) == 1
+    assert main(["discover", "--robot", ROBOT, "--calib", str(tmp_path / "nope.mcap"), str(tmp_path / "r.mcap")]) == 1
     assert "nope.mcap" in capsys.readouterr().err
 
 

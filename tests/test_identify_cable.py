@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from cablesvc.bench.cable_experiment import effective_values, experiment_truth, run_cable_experiment
-from cablesvc.cli.identify_cmd import build_parser, run_identify
+from cablesvc.cli.main import main
 from cablesvc.config import load_robot
 from cablesvc.config.params import load_params
 from cablesvc.identify.amplitude_levels import damping_regressor, level_trace, segment_levels, simulate_amplitude
@@ -144,8 +144,8 @@ def test_cli_writes_loadable_params_and_report(tmp_path, hold_rec):
     write_recording(rec_path, hold_rec)
     out = tmp_path / "params.toml"
     rep = tmp_path / "report"
-    code = run_identify(["--model", "amplitude", "--robot", ROBOT, str(rec_path), "--cables", "1",
-                         "--out", str(out), "--report", str(rep), "--quiet"])
+    code = main(["identify", "--model", "amplitude", "--robot", ROBOT, str(rec_path), "--cables", "1",
+                 "--out", str(out), "--report", str(rep), "--quiet"])
     assert code == 0
     p = load_params(out)
     assert p.model == "amplitude" and p.robot == ROBOT
@@ -160,25 +160,33 @@ def test_cli_writes_loadable_params_and_report(tmp_path, hold_rec):
         assert (rep / n).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # linear model through the CLI, least squares only
     out2 = tmp_path / "lin.toml"
-    assert run_identify(["--model", "linear", str(rec_path), "--cables", "0,2", "--method", "lm",
-                         "--out", str(out2), "--quiet"]) == 0
+    assert main(["identify", "--model", "linear", str(rec_path), "--cables", "0,2", "--method", "lm",
+                 "--out", str(out2), "--quiet"]) == 0
     assert load_params(out2).model == "linear"
 
 
 def test_cli_errors_exit_1(tmp_path, hold_rec, capsys):
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"not an mcap file at all")
-    assert run_identify(["--model", "linear", str(bad), "--quiet"]) == 1
+    assert main(["identify", "--model", "linear", str(bad), "--quiet"]) == 1
     assert "cannot read the recording" in capsys.readouterr().err
     good = tmp_path / "hold.mcap"
     write_recording(good, hold_rec)
-    assert run_identify(["--model", "spline", str(good), "--quiet"]) == 1
+    assert main(["identify", "--model", "spline", str(good), "--quiet"]) == 1
     assert "unknown model" in capsys.readouterr().err
-    assert run_identify(["--model", "linear", str(good), "--cables", "0,9", "--quiet"]) == 1
+    assert main(["identify", "--model", "linear", str(good), "--cables", "0,9", "--quiet"]) == 1
     assert "out of range" in capsys.readouterr().err
-    assert run_identify(["--model", "linear", str(good), "--method", "annealing", "--quiet"]) == 1
-    args = build_parser().parse_args(["identify", str(good)])
-    assert args.model == "amplitude" and args.method == "pso+lm" and args.seed == 0
+    assert main(["identify", "--model", "linear", str(good), "--method", "annealing", "--quiet"]) == 1
+    assert "unknown method" in capsys.readouterr().err
+    # the defaults: model amplitude, method pso+lm, seed 0 (what the parameter file records)
+    out = tmp_path / "defaults.toml"
+    assert main(["identify", str(good), "--cables", "0", "--out", str(out), "--quiet"]) == 0
+    p = load_params(out)
+    assert p.model == "amplitude", p.model
+    out = tmp_path / "defaults_linear.toml"
+    assert main(["identify", "--model", "linear", str(good), "--cables", "0", "--out", str(out), "--quiet"]) == 0
+    p = load_params(out)
+    assert p.identification["method"] == "pso+lm" and p.identification["seed"] == 0, p.identification
 
 
 def test_cable_experiment_bench_small():

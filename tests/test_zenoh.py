@@ -395,23 +395,15 @@ def test_listen_command_in_a_subprocess_prints_json_lines(endpoint):
 
 
 def test_listen_command_status_and_alive_in_process(endpoint, capsys):
-    import argparse
+    from cablesvc.cli.main import main
 
-    from cablesvc.cli.listen_cmd import add_parser
-
-    parser = argparse.ArgumentParser()
-    sub = parser.add_subparsers()
-    add_parser(sub)
     pub = Publisher("r1", make_config(listen=(endpoint,)), status=lambda: {"robot": "r1", "ticks": 3})
     try:
-        args = parser.parse_args(["listen", "--status", "--robot", "r1", "--connect", endpoint, "--json"])
-        assert args.func(args) == 0
+        assert main(["listen", "--status", "--robot", "r1", "--connect", endpoint, "--json"]) == 0
         assert json.loads(capsys.readouterr().out) == {"robot": "r1", "ticks": 3}
-        args = parser.parse_args(["listen", "--alive", "--connect", endpoint, "--json"])
-        assert args.func(args) == 0
+        assert main(["listen", "--alive", "--connect", endpoint, "--json"]) == 0
         assert json.loads(capsys.readouterr().out) == ["r1"]
     finally:
         pub.close()
-    args = parser.parse_args(["listen", "--status", "--robot", "r1", "--connect", endpoint, "--wait", "0.3"])
-    assert args.func(args) == 1
+    assert main(["listen", "--status", "--robot", "r1", "--connect", endpoint, "--wait", "0.3"]) == 1
     assert "no daemon answered" in capsys.readouterr().err

@@ -9,6 +9,9 @@
 * ``paper``: all loops of 000 Sec 6 and Figs 6-7 as PNG files.
 * ``bridge``: fits the lumped Bouc-Wen cable model to the beam's loops and writes a
   parameter file for ``cablesvc run --params``.
+
+A bad argument or input file is a :class:`~cablesvc.cli.failures.UsageError`: one line,
+``cablesvc beam <action>: ...``, exit code 2.
 """
 
 from __future__ import annotations
@@ -16,12 +19,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from cablesvc.cli.failures import UsageError
 from cablesvc.cli.paths import dir_problem, file_problem
 
 ROPES = {"7x19": "ROPE_7x19", "7x7": "ROPE_7x7"}
@@ -47,12 +50,6 @@ _positive_float = _arg_type(float, " > 0", lambda v: v > 0)
 _nonnegative_float = _arg_type(float, " >= 0", lambda v: v >= 0)
 _positive_int = _arg_type(int, " >= 1", lambda v: v >= 1)
 _finite_float = _arg_type(float)
-
-
-def _fail(action: str, msg: str) -> int:
-    """One-line error on stderr; exit code 2 (a bad argument or input file)."""
-    print(f"cablesvc beam {action}: {msg}", file=sys.stderr)
-    return 2
 
 
 def _rope(name: str):
@@ -105,10 +102,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from cablesvc.beam.paper import hardening_ratio
     from cablesvc.beam.solver import stabilised_loop
     if args.out and (why := dir_problem(args.out)):
-        return _fail("simulate", f"--out {args.out}: {why}")
+        raise UsageError(f"--out {args.out}: {why}")
     A = np.array([1e-3 * float(a) for a in args.amplitude])
     if why := _size_problem(args, A.size):
-        return _fail("simulate", why)
+        raise UsageError(why)
     sec, length, par = _rope(args.rope), _length(args), _params(args)
     lp = stabilised_loop(sec, length, par, A, options=_options(args))
     rows = [{"amplitude_mm": 1e3 * a, "f_max_N": float(np.max(lp.f[i])), "f_min_N": float(np.min(lp.f[i])),
@@ -154,7 +151,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
     from rich.table import Table
     from cablesvc.beam.identify import BeamTest, identify_beam, synthetic_test
     if why := _size_problem(args, args.particles):
-        return _fail("identify", why)
+        raise UsageError(why)
     sec, length = _rope(args.rope), _length(args)
     opt = _options(args)
     if args.synthetic:
@@ -162,26 +159,26 @@ def cmd_identify(args: argparse.Namespace) -> int:
                             steps_per_cycle=args.steps)
     else:
         if not args.data:
-            return _fail("identify", "give --data FILE.csv or --synthetic")
+            raise UsageError("give --data FILE.csv or --synthetic")
         try:
             d = np.loadtxt(args.data, delimiter=",", skiprows=1, ndmin=2)
         except (OSError, ValueError) as e:
             why = e.strerror if isinstance(e, OSError) and e.strerror else str(e).splitlines()[0]
-            return _fail("identify", f"--data {args.data}: cannot read the CSV: {why}")
+            raise UsageError(f"--data {args.data}: cannot read the CSV: {why}") from None
         if d.ndim != 2 or d.shape[1] < 3:
-            return _fail("identify", f"--data {args.data}: need 3 columns t [s], x [m], f [N] after the header, "
-                                     f"got {d.shape[1] if d.ndim == 2 and d.size else 0}")
+            raise UsageError(f"--data {args.data}: need 3 columns t [s], x [m], f [N] after the header, "
+                             f"got {d.shape[1] if d.ndim == 2 and d.size else 0}")
         if not np.all(np.isfinite(d[:, :3])):
-            return _fail("identify", f"--data {args.data}: t, x, f must be finite numbers")
+            raise UsageError(f"--data {args.data}: t, x, f must be finite numbers")
         t, x, f = d[:, 0], d[:, 1], d[:, 2]
         if x.size != args.steps + 1:
-            return _fail("identify", f"--data {args.data}: has {x.size} samples; need --steps + 1 = "
-                                     f"{args.steps + 1} (one period)")
+            raise UsageError(f"--data {args.data}: has {x.size} samples; need --steps + 1 = "
+                             f"{args.steps + 1} (one period)")
         if not t[-1] > t[0]:
-            return _fail("identify", f"--data {args.data}: time t must increase over the period "
-                                     f"(t[0] = {t[0]:g} s, t[-1] = {t[-1]:g} s)")
+            raise UsageError(f"--data {args.data}: time t must increase over the period "
+                             f"(t[0] = {t[0]:g} s, t[-1] = {t[-1]:g} s)")
         if not np.max(np.abs(x)) > 0:
-            return _fail("identify", f"--data {args.data}: displacement x is zero everywhere")
+            raise UsageError(f"--data {args.data}: displacement x is zero everywhere")
         te = BeamTest(section=sec, length=length, amplitude=float(np.max(np.abs(x))), t=t, x=x, f=f,
                       omega=2 * np.pi / (t[-1] - t[0]))
     con = Console(stderr=args.json)
@@ -227,10 +224,10 @@ def cmd_identify(args: argparse.Namespace) -> int:
 def cmd_paper(args: argparse.Namespace) -> int:
     from cablesvc.beam.paper import reproduce
     if why := dir_problem(args.out):
-        return _fail("paper", f"--out {args.out}: {why}")
+        raise UsageError(f"--out {args.out}: {why}")
     from cablesvc.beam.paper import AMPLITUDES
     if why := _size_problem(args, len(AMPLITUDES)):
-        return _fail("paper", why)
+        raise UsageError(why)
     s = reproduce(args.out, options=_options(args))
     if args.json:
         print(json.dumps(s))
@@ -250,10 +247,10 @@ def cmd_bridge(args: argparse.Namespace) -> int:
     if args.write:
         why = file_problem(args.write)
         if why:
-            return _fail("bridge", f"--write {args.write}: {why}")
+            raise UsageError(f"--write {args.write}: {why}")
     A = [1e-3 * float(a) for a in args.amplitude]
     if why := _size_problem(args, len(A)):
-        return _fail("bridge", why)
+        raise UsageError(why)
     fit = fit_lumped(_rope(args.rope), _length(args), _params(args), A, options=_options(args))
     print(fit.report())
     if args.write:

@@ -10,7 +10,8 @@ call as ``cablesvc identify --model amplitude``). The first line printed is the 
 Prints where the residual is (cables, time, state), the terms chosen with their evidence,
 and the held-out RMSE per cable before and after; ``--report`` writes JSON, PNG figures,
 the augmented parameter file and an HTML page; ``--json`` prints the JSON instead of text.
-Errors are one line and exit code 1. Several recordings, a directory or a glob run as a
+Errors are raised as :class:`~cablesvc.errors.CablesvcError`: one line (cablesvc.cli.failures),
+exit code 1. Several recordings, a directory or a glob run as a
 fleet (:mod:`cablesvc.batch`, docs/cluster.md): one row per recording and a fleet summary.
 """
 
@@ -18,33 +19,43 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
+
+from cablesvc.errors import BatchError, CablesvcError, ConfigError, DiscoveryError
 
 __all__ = ["add_parser", "cmd_discover"]
 
 
+def _as_discovery_error(e: Exception) -> CablesvcError:
+    """A KeyError (an unknown term), OSError or ValueError out of the library as the
+    discovery error it means (its message, a KeyError's without the quotes str() adds); a
+    CablesvcError stays itself."""
+    if isinstance(e, CablesvcError):
+        return e
+    return DiscoveryError(e.args[0] if isinstance(e, KeyError) and e.args else str(e))
+
+
+def _fleet_failure(msg: str) -> int:
+    """A fleet that cannot run (cablesvc.batch.cli): raised, printed as one line by the CLI."""
+    raise BatchError(msg)
+
+
 def cmd_discover(args: argparse.Namespace) -> int:
-    from cablesvc.config.params import ParamFileError
-    from cablesvc.config.robot import RobotFileError, load_robot
-    from cablesvc.discover import DiscoveryError, SelectOptions, ForwardSelector, discover, library
+    from cablesvc.config.robot import load_robot
+    from cablesvc.discover import SelectOptions, ForwardSelector, discover, library
     from cablesvc.recording import RecordingError, read_recording
 
-    def fail(msg: str) -> int:
-        print(f"cablesvc discover: {msg}", file=sys.stderr)
-        return 1
-
     if args.boucwen:
-        return _cmd_boucwen(args, fail)
+        return _cmd_boucwen(args)
     specs = [args.recording] if isinstance(args.recording, str) else list(args.recording or [])
     from cablesvc.batch.cli import fleet_requested
     if specs and fleet_requested(args, specs):
-        return _cmd_fleet(args, specs, fail)
+        return _cmd_fleet(args, specs)
     args.recording = specs[0] if len(specs) == 1 else None
     if not args.recording or not args.robot:
-        return fail("a recording and --robot are needed (or --boucwen)")
+        raise ConfigError("a recording and --robot are needed (or --boucwen)")
 
     if args.calib and args.params:
-        return fail("give either --params or --calib (the baseline is identified from --calib)")
+        raise ConfigError("give either --params or --calib (the baseline is identified from --calib)")
     try:
         robot = load_robot(args.robot)
         params = args.params
@@ -52,8 +63,8 @@ def cmd_discover(args: argparse.Namespace) -> int:
             from cablesvc.identify.cable import identify_cable
             try:
                 calib = read_recording(args.calib)
-            except RecordingError as e:
-                return fail(f"--calib {args.calib}: {e}")
+            except RecordingError as e:                   # which of the two recordings
+                raise DiscoveryError(f"--calib {args.calib}: {e}") from None
             params = identify_cable(calib, robot, "amplitude").params
             params.identification["recording"] = str(args.calib)
         terms = library(args.terms.split(",")) if args.terms else None
@@ -61,7 +72,7 @@ def cmd_discover(args: argparse.Namespace) -> int:
         from cablesvc.cli.stream_args import wants_streaming
         from cablesvc.discover.stream import discover_stream
         if args.stream == "on" and args.since:
-            return fail("--since needs the whole recording in memory: use it with --stream off or auto")
+            raise ConfigError("--since needs the whole recording in memory: use it with --stream off or auto")
         if not args.since and wants_streaming(args, args.recording, args.block):
             d = discover_stream(args.recording, robot, params, terms=terms, selector=sel, block=args.block,
                                 exact_baseline=args.exact_baseline, rate=args.analysis_rate,
@@ -70,8 +81,8 @@ def cmd_discover(args: argparse.Namespace) -> int:
             rec = read_recording(args.recording)
             d = discover(rec, robot, params, terms=terms, selector=sel, block=args.block,
                          exact_baseline=args.exact_baseline, since=args.since)
-    except (RobotFileError, RecordingError, ParamFileError, DiscoveryError, KeyError, OSError, ValueError) as e:
-        return fail(str(e))
+    except (KeyError, OSError, ValueError) as e:
+        raise _as_discovery_error(e) from None
     files = {}
     if args.report:
         from cablesvc.discover.report import write_report
@@ -91,18 +102,18 @@ def cmd_discover(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_fleet(args, specs, fail) -> int:
+def _cmd_fleet(args, specs) -> int:
     """Many recordings (cablesvc.batch): one discovery per recording on Dask."""
     import os
 
     from cablesvc.batch.cli import cmd_fleet
-    from cablesvc.config.params import ParamFileError, load_params
-    from cablesvc.config.robot import RobotFileError, load_robot
+    from cablesvc.config.params import load_params
+    from cablesvc.config.robot import load_robot
     from cablesvc.discover import library
 
     for flag, given in (("--calib", args.calib), ("--out", args.out)):
         if given:
-            return fail(f"{flag} is for one recording; with many, use --params (the same baseline for all) "
+            raise ConfigError(f"{flag} is for one recording; with many, use --params (the same baseline for all) "
                         "or none (each robot's nominal baseline)")
     try:
         if args.robot:
@@ -112,21 +123,21 @@ def _cmd_fleet(args, specs, fail) -> int:
         terms = [t.strip() for t in args.terms.split(",") if t.strip()] if args.terms else None
         if terms:
             library(terms)
-    except (RobotFileError, ParamFileError, KeyError, OSError, ValueError) as e:
-        return fail(str(e))
+    except (KeyError, OSError, ValueError) as e:
+        raise _as_discovery_error(e) from None
     opts = {"robot": os.path.abspath(args.robot) if args.robot and os.path.exists(args.robot) else args.robot,
             "params": os.path.abspath(args.params) if args.params else None, "terms": terms,
             "block": args.block, "min_gain": args.min_gain, "exact_baseline": bool(args.exact_baseline)}
-    return cmd_fleet("discover", args, specs, opts, fail)
+    return cmd_fleet("discover", args, specs, opts, _fleet_failure)
 
 
-def _cmd_boucwen(args, fail) -> int:
+def _cmd_boucwen(args) -> int:
     from pathlib import Path
     from cablesvc.discover.oscillator_case import boucwen_summary, run_boucwen_discovery
     try:
         res = run_boucwen_discovery(args.data, hold=args.hold)
     except (OSError, ValueError, KeyError) as e:
-        return fail(str(e))
+        raise _as_discovery_error(e) from None
     if args.report:
         d = Path(args.report)
         d.mkdir(parents=True, exist_ok=True)

@@ -12,6 +12,10 @@ from cablesvc.errors import CablesvcError, ConfigError, ServiceError
 
 __all__ = ["UsageError", "exit_status", "run_command", "zenoh_failure"]
 
+#: commands whose sub-command (an attribute of the same name) belongs in the line:
+#: ``cablesvc bench kernel: ...``, ``cablesvc beam identify: ...``
+WITH_ACTION = ("bench", "beam")
+
 
 class UsageError(ConfigError, ValueError):
     """A command-line value that no config can fix (``--count 0``, ``--rate -1``): exit status 2."""
@@ -33,11 +37,12 @@ def zenoh_failure(what: str, where: str, e: BaseException) -> ServiceError:
 
 def run_command(args) -> int:
     """Run the parsed command ``args.func(args)``; a :class:`CablesvcError` becomes one line
-    on stderr, ``cablesvc <command>: <message>`` (``bench kernel`` for a benchmark), and its
-    exit status."""
+    on stderr, ``cablesvc <command>: <message>`` (``bench kernel`` for a benchmark, ``beam
+    identify`` for a beam action), and its exit status."""
     try:
         return int(args.func(args) or 0)
     except CablesvcError as e:
-        command = " ".join(c for c in (args.command, getattr(args, "bench", None)) if c)
+        action = getattr(args, args.command, None) if args.command in WITH_ACTION else None
+        command = " ".join(c for c in (args.command, action) if c)
         print(f"cablesvc {command}: {e}", file=sys.stderr)
         return exit_status(e)

@@ -5,7 +5,8 @@
 Shows a progress bar while it works, then a table of the parameters with standard errors;
 ``--out`` writes a parameter file that ``cablesvc run --params`` loads; ``--report`` writes a
 Markdown report with PNG plots. Errors (unreadable recording, unknown model or method,
-cable index out of range, robot/recording mismatch) are one clear line and exit code 1.
+cable index out of range, robot/recording mismatch) are raised as
+:class:`~cablesvc.errors.CablesvcError` (one clear line from cablesvc.cli.failures, exit code 1).
 Several recordings, a directory or a glob run as a fleet (:mod:`cablesvc.batch`,
 docs/cluster.md): one row per recording and a fleet summary of the cables that drift.
 """
@@ -13,13 +14,13 @@ docs/cluster.md): one row per recording and a fleet summary of the cables that d
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from cablesvc.cli.paths import dir_problem, file_problem
+from cablesvc.errors import BatchError, CablesvcError, ConfigError, IdentifyError
 
-__all__ = ["add_parser", "cmd_identify", "run_identify", "build_parser"]
+__all__ = ["add_parser", "cmd_identify"]
 
 DESCRIPTION = """\
 Identify cable-model parameters from a recording (MCAP or CSV) with pose, motor lengths
@@ -44,9 +45,9 @@ examples:
 STREAM_MIN_TICKS = 20_000
 
 
-def _fail(msg: str) -> int:
-    print(f"cablesvc identify: {msg}", file=sys.stderr)
-    return 1
+def _fleet_failure(msg: str) -> int:
+    """A fleet that cannot run (cablesvc.batch.cli): raised, printed as one line by the CLI."""
+    raise BatchError(msg)
 
 
 def _parse_cables(text: str | None) -> list[int] | None:
@@ -63,30 +64,30 @@ def cmd_identify(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from cablesvc.config import RobotFileError, load_robot
-    from cablesvc.identify.cable import METHODS, MODEL_CHOICES, IdentifyError, identify_cable
+    from cablesvc.config import load_robot
+    from cablesvc.identify.cable import METHODS, MODEL_CHOICES, identify_cable
     from cablesvc.identify.report import format_value, write_report
     from cablesvc.recording import RecordingError, read_recording
 
     con = Console()
     if args.model not in MODEL_CHOICES:
-        return _fail(f"unknown model {args.model!r}; choose one of {', '.join(MODEL_CHOICES)}")
+        raise ConfigError(f"unknown model {args.model!r}; choose one of {', '.join(MODEL_CHOICES)}")
     if args.method not in METHODS:
-        return _fail(f"unknown method {args.method!r}; choose one of {', '.join(METHODS)}")
+        raise ConfigError(f"unknown method {args.method!r}; choose one of {', '.join(METHODS)}")
     try:
         cables = _parse_cables(args.cables)
     except ValueError as e:
-        return _fail(str(e))
+        raise ConfigError(str(e)) from None
     specs = [args.recording] if isinstance(args.recording, str) else list(args.recording)
     from cablesvc.batch.cli import fleet_requested
     if fleet_requested(args, specs) or args.json:
         return _cmd_fleet(args, specs, cables)
     if args.out and len(specs) != 1:
-        return _fail("--out is for one recording")
+        raise ConfigError("--out is for one recording")
     args.recording = specs[0]
     rec_path = Path(args.recording)
     if not rec_path.exists():
-        return _fail(f"{rec_path}: recording not found")
+        raise ConfigError(f"{rec_path}: recording not found")
     reduction = None
     try:
         from cablesvc.cli.stream_args import wants_streaming
@@ -94,33 +95,26 @@ def cmd_identify(args: argparse.Namespace) -> int:
         from cablesvc.recording import read_metadata
         if wants_streaming(args, rec_path, 2.5, min_ticks=STREAM_MIN_TICKS):
             file_robot = read_metadata(rec_path).get("robot", "")
-            try:
-                robot = load_robot(args.robot or file_robot)
-            except RobotFileError as e:
-                return _fail(str(e))
+            robot = load_robot(args.robot or file_robot)           # RobotFileError: one line as it is
             rec, reduction = reduced_recording(rec_path, robot, rate=args.analysis_rate,
                                                max_groups=args.max_groups)
             rec.robot = file_robot
         else:
             rec = read_recording(rec_path)
-    except RecordingError as e:
-        return _fail(f"cannot read the recording: {e}")
-    except (OSError, ValueError) as e:
-        return _fail(f"cannot read the recording {rec_path}: {e}")
-    robot_name = args.robot or rec.robot
-    try:
-        robot = load_robot(robot_name)
-    except RobotFileError as e:
-        return _fail(str(e))
+    except RecordingError as e:                 # the message says which file and where
+        raise IdentifyError(f"cannot read the recording: {e}") from None
+    except (OSError, ValueError) as e:          # an unreadable file: name it
+        raise IdentifyError(f"cannot read the recording {rec_path}: {e}") from None
+    robot = load_robot(args.robot or rec.robot)
     if args.robot and rec.robot and rec.robot != robot.name:
         con.print(f"[yellow]note:[/] the recording says robot {rec.robot!r}, using {robot.name!r} as asked")
     if args.out and Path(args.out).suffix.lower() != ".toml":
-        return _fail(f"--out {args.out}: the parameter file must end in .toml")
+        raise ConfigError(f"--out {args.out}: the parameter file must end in .toml")
     # output paths are checked before the (long) fit, not after it
     if args.out and (why := file_problem(args.out)):
-        return _fail(f"--out {args.out}: cannot write the parameter file: {why}")
+        raise ConfigError(f"--out {args.out}: cannot write the parameter file: {why}")
     if args.report and (why := dir_problem(args.report)):
-        return _fail(f"--report {args.report}: cannot write the report folder: {why}")
+        raise ConfigError(f"--report {args.report}: cannot write the report folder: {why}")
     try:
         with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                       TimeElapsedColumn(), console=con, transient=True, disable=args.quiet) as prog:
@@ -131,13 +125,13 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
             fit = identify_cable(rec, robot, args.model, cables=cables, shared=args.shared, method=args.method,
                                  seed=args.seed, progress=cb, iterations=args.iterations, particles=args.particles)
-    except IdentifyError as e:
-        return _fail(str(e))
     except ValueError as e:
-        return _fail(str(e))
+        if isinstance(e, CablesvcError):        # IdentifyError and friends: one line as they are
+            raise
+        raise IdentifyError(str(e)) from None   # a value the fit cannot take: one line
 
     if reduction is not None:
-        from cablesvc.discover.stream import describe_reduction
+        from cablesvc.discover.pipeline import describe_reduction
         fit.notes.append(describe_reduction(reduction) + f"; fitted on those ticks (the model runs across the "
                          f"{reduction['gaps']} gaps between groups as if they were one record)")
         fit.params.identification["stream"] = {k: v for k, v in reduction.items() if k != "stream_seconds"}
@@ -157,20 +151,17 @@ def _cmd_fleet(args: argparse.Namespace, specs: list[str], cables: list[int] | N
     import os
 
     from cablesvc.batch.cli import cmd_fleet
-    from cablesvc.config import RobotFileError, load_robot
+    from cablesvc.config import load_robot
 
     if args.out:
-        return _fail("--out is for one recording; with many, each row of --json / --report holds its parameter "
-                     "file (params_toml)")
+        raise ConfigError("--out is for one recording; with many, each row of --json / --report holds its parameter "
+                          "file (params_toml)")
     if args.robot:
-        try:
-            load_robot(args.robot)
-        except RobotFileError as e:
-            return _fail(str(e))
+        load_robot(args.robot)
     opts = {"robot": os.path.abspath(args.robot) if args.robot and os.path.exists(args.robot) else args.robot,
             "model": args.model, "method": args.method, "cables": cables, "shared": bool(args.shared),
             "seed": args.seed, "particles": args.particles, "iterations": args.iterations}
-    return cmd_fleet("identify", args, specs, opts, _fail)
+    return cmd_fleet("identify", args, specs, opts, _fleet_failure)
 
 
 def _print_table(con: Any, fit: Any, format_value: Any) -> None:
@@ -242,17 +233,3 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     add_fleet_arguments(p)
     p.set_defaults(func=cmd_identify)
     return p
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """A stand-alone parser with just ``identify`` (for tests and scripts)."""
-    parser = argparse.ArgumentParser(prog="cablesvc")
-    sub = parser.add_subparsers(dest="command")
-    add_parser(sub)
-    return parser
-
-
-def run_identify(argv: Sequence[str]) -> int:
-    """``cablesvc identify ARGV...`` without the main CLI: returns the exit code."""
-    args = build_parser().parse_args(["identify", *argv])
-    return int(args.func(args))

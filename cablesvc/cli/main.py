@@ -27,8 +27,12 @@ def _console():
 # ---- simulate --------------------------------------------------------------------------
 
 def cmd_simulate(args) -> int:
+    """``cablesvc simulate``; a bad flag is a UsageError (exit 2), a file that cannot be
+    written a SimulationError (exit 1): one line each (cablesvc.cli.failures)."""
+    from cablesvc.cli.failures import UsageError
     from cablesvc.config import load_robot
     from cablesvc.config.params import load_params
+    from cablesvc.errors import SimulationError
     from cablesvc.simulate import SCENARIOS, TruthConfig, effect_from_spec, list_effects, simulate_recording
 
     if args.list:
@@ -41,20 +45,16 @@ def cmd_simulate(args) -> int:
             con.print(f"  {line}")
         return 0
     if not args.out:
-        print("cablesvc simulate: --out is required (a .mcap or .csv path)", file=sys.stderr)
-        return 2
+        raise UsageError("--out is required (a .mcap or .csv path)")
     out = Path(args.out)
     parent = out.parent if str(out.parent) else Path(".")
     if out.is_dir():
-        print(f"cablesvc simulate: --out {args.out} is a directory; give a .mcap or .csv file path", file=sys.stderr)
-        return 2
+        raise UsageError(f"--out {args.out} is a directory; give a .mcap or .csv file path")
     if not parent.is_dir():
-        print(f"cablesvc simulate: --out {args.out}: directory {parent} does not exist", file=sys.stderr)
-        return 2
+        raise UsageError(f"--out {args.out}: directory {parent} does not exist")
     robot = load_robot(args.robot)
     if why := _twin_size_problem(args, robot.n_cables):
-        print(f"cablesvc simulate: {why}", file=sys.stderr)
-        return 2
+        raise UsageError(why)
     effects = [effect_from_spec(s, robot.n_cables) for s in args.effect]
     base = load_params(args.truth_params) if args.truth_params else None
     truth = TruthConfig(base=base, effects=effects, noise_std=args.noise, seed=args.seed)
@@ -69,8 +69,7 @@ def cmd_simulate(args) -> int:
         rec = simulate_recording(robot, args.scenario, out, truth=truth, duration=args.duration,
                                  rate=args.rate, seed=args.seed, encoding=args.encoding, **kwargs)
     except OSError as e:                    # a read-only directory, a full disk, ...: one line naming the file
-        print(f"cablesvc simulate: cannot write {e.filename or args.out}: {e.strerror or e}", file=sys.stderr)
-        return 1
+        raise SimulationError(f"cannot write {e.filename or args.out}: {e.strerror or e}") from None
     print(f"wrote {args.out}: {rec.n_ticks} ticks, {rec.n_cables} cables, "
           f"{rec.t[-1] - rec.t[0]:.1f} s, effects: {', '.join(e.describe() for e in effects) or 'none'}")
     return 0
