@@ -21,15 +21,6 @@ from cablesvc.cli.run_session import (
     view,
     wait_until_stopped,
 )
-from cablesvc.config.daemon import (
-    RobotOverrides,
-    daemon_config,
-    is_endpoint,
-    is_fleet_config,
-    load_config,
-    seconds_ok,
-    zenoh_where,
-)
 from cablesvc.errors import ConfigError
 
 DESCRIPTION = """\
@@ -141,6 +132,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
 def check_flags(args) -> str | None:
     """The command-line values that no config can fix: a one-line message for the first bad
     one (exit status 2), or None."""
+    from cablesvc.config.daemon import is_endpoint, seconds_ok
+
     for flag, v, zero in (("--snapshot-interval", args.snapshot_interval, False), ("--seconds", args.seconds, False),
                           ("--rate", args.rate, False), ("--wait-subscriber", args.wait_subscriber, True)):
         if v is not None and not seconds_ok(v, zero=zero):
@@ -199,6 +192,7 @@ def cmd_run(args) -> int:
 def _cmd_run(args) -> int:
     import zenoh
 
+    from cablesvc.config.daemon import RobotOverrides, daemon_config, is_fleet_config, load_config, zenoh_where
     from cablesvc.service.daemon import Daemon
     from cablesvc.service.plan import plan_daemon
 

@@ -20,7 +20,6 @@ from typing import Any
 
 from cablesvc.cli.failures import zenoh_failure
 from cablesvc.cli.run_session import StartupInterrupted, reload_on_sighup, view, wait_until_stopped
-from cablesvc.config.daemon import FleetConfigError, RunOverrides, fleet_config, zenoh_where
 from cablesvc.errors import ConfigError, ServiceError
 
 __all__ = ["per_robot_flags", "run_fleet", "run_overrides"]
@@ -36,8 +35,11 @@ _PER_ROBOT_FLAGS = (("robot", "--robot"), ("params", "--params"), ("source", "--
                     ("snapshot", "--snapshot"))
 
 
-def run_overrides(args) -> RunOverrides:
-    """The flags of ``cablesvc run`` that every robot of the daemon shares."""
+def run_overrides(args):
+    """The flags of ``cablesvc run`` that every robot of the daemon shares (a
+    :class:`~cablesvc.config.daemon.RunOverrides`)."""
+    from cablesvc.config.daemon import RunOverrides
+
     return RunOverrides(zenoh_config=args.zenoh_config, listen=args.listen, connect=args.connect,
                         encoding=args.encoding, snapshot_interval=args.snapshot_interval,
                         no_snapshot=bool(args.no_snapshot), wait_subscriber=args.wait_subscriber,
@@ -59,6 +61,7 @@ def run_fleet(args, cfg: dict[str, Any], file: str) -> int:
     snapshot) and the process exits 0, or 1 when a robot's loop ended with an error."""
     import zenoh
 
+    from cablesvc.config.daemon import FleetConfigError, fleet_config, zenoh_where
     from cablesvc.service.fleet import Fleet, FleetError, FleetStartError
     from cablesvc.service.plan import plan_fleet
 

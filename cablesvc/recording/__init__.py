@@ -12,15 +12,41 @@ record structure, complete or cut short), ``mcap_writer``, ``mcap_reader``, ``cs
 ``files`` (dispatch on the suffix), ``chunks`` (a long recording in pieces).
 """
 
-from .csv_io import POSE_COLUMNS, csv_header, iter_csv_inputs, read_csv, read_csv_metadata, write_csv
-from .files import iter_inputs, read_metadata, read_recording, write_recording
-from .format import (BLOCK_FORMAT_VERSION, ENCODINGS, FORMAT_VERSION, METADATA_NAME, Recording, RecordingError,
-                     RecordingTruncatedWarning, Tick, Truncation)
-from .mcap_reader import iter_mcap_inputs, read_mcap, read_mcap_metadata
-from .mcap_writer import DEFAULT_BLOCK_TICKS, DEFAULT_CHUNK_SIZE, DEFAULT_ENCODING, McapRecordingWriter, write_mcap
-from .schemas import (ALARM_JSON_SCHEMA, ALARM_SCHEMA_NAME, ALARMS_TOPIC, FORCES_JSON_SCHEMA, FORCES_SCHEMA_NAME,
-                      FORCES_TOPIC, INPUT_JSON_SCHEMA, INPUT_SCHEMA_NAME, INPUT_TOPIC, MESSAGE_ENCODING, OUTPUT_TOPICS,
-                      SCHEMA_ENCODING)
+import importlib
+from typing import Any
+
+#: each public name and the module that defines it; a name is imported on first use
+#: (module ``__getattr__``), so that ``cablesvc.recording.schemas`` (the topics and JSON
+#: schemas the live service's messages use) does not pull in the MCAP and CSV readers and
+#: writers: ``cablesvc listen`` starts without them
+_HOMES = {
+    "csv_io": ("POSE_COLUMNS", "csv_header", "iter_csv_inputs", "read_csv", "read_csv_metadata", "write_csv"),
+    "files": ("iter_inputs", "read_metadata", "read_recording", "write_recording"),
+    "format": ("BLOCK_FORMAT_VERSION", "ENCODINGS", "FORMAT_VERSION", "METADATA_NAME", "Recording", "RecordingError",
+               "RecordingTruncatedWarning", "Tick", "Truncation"),
+    "mcap_reader": ("iter_mcap_inputs", "read_mcap", "read_mcap_metadata"),
+    "mcap_writer": ("DEFAULT_BLOCK_TICKS", "DEFAULT_CHUNK_SIZE", "DEFAULT_ENCODING", "McapRecordingWriter",
+                    "write_mcap"),
+    "schemas": ("ALARM_JSON_SCHEMA", "ALARM_SCHEMA_NAME", "ALARMS_TOPIC", "FORCES_JSON_SCHEMA", "FORCES_SCHEMA_NAME",
+                "FORCES_TOPIC", "INPUT_JSON_SCHEMA", "INPUT_SCHEMA_NAME", "INPUT_TOPIC", "MESSAGE_ENCODING",
+                "OUTPUT_TOPICS", "SCHEMA_ENCODING"),
+}
+_HOME = {name: module for module, names in _HOMES.items() for name in names}
+
+
+def __getattr__(name: str) -> Any:
+    """A public name, imported from its module on first use (then an attribute here)."""
+    module = _HOME.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     "ALARM_JSON_SCHEMA",
