@@ -10,8 +10,8 @@ import pytest
 from cablesvc.config.robot import load_robot
 from cablesvc.discover import discover, library
 from cablesvc.discover.pipeline import baseline_params, build_signals
-from cablesvc.discover.stream import BlockAccumulator, amplitude_stream, discover_stream, read_reduced, reduced_recording
-from cablesvc.models.reversal import reversal_amplitude
+from cablesvc.discover.stream import BlockAccumulator, discover_stream, read_reduced, reduced_recording
+from cablesvc.models.reversal import amplitude_stream, reversal_amplitude
 from cablesvc.recording import read_recording, write_recording
 from cablesvc.recording.chunks import iter_chunks
 from cablesvc.simulate import TruthConfig, effect_from_spec, simulate_recording

@@ -38,15 +38,17 @@ from cablesvc.discover.locate import locate
 from cablesvc.discover.select import Fit, ForwardSelector, Selection, fit_terms
 from cablesvc.discover.screen import BlockScreen
 from cablesvc.errors import DiscoveryError
-from cablesvc.models.terms import Signals, Term, library, reversal_amplitude
 from cablesvc.kinematics import inverse_kinematics
 from cablesvc.models import simulate
+from cablesvc.models.reversal import reversal_amplitude
+from cablesvc.models.terms import Signals, Term, library
 
-__all__ = ["Discovery", "Finding", "DiscoveryError", "baseline_params", "backward_rate", "build_signals", "split_blocks",
-           "discover"]
+__all__ = ["Discovery", "Finding", "DiscoveryError", "as_robot", "baseline_params", "backward_rate", "build_signals",
+           "split_blocks", "discover", "discover_signals"]
 
 
-def _robot(robot: Union[Robot, str, "os.PathLike[str]"]) -> Robot:
+def as_robot(robot: Union[Robot, str, "os.PathLike[str]"]) -> Robot:
+    """``robot`` itself, or the robot file it names (:func:`cablesvc.config.robot.load_robot`)."""
     return robot if isinstance(robot, Robot) else load_robot(robot)
 
 
@@ -379,19 +381,19 @@ def discover(recording: Any, robot: Union[Robot, str, "os.PathLike[str]"],
     the whole recording, so its hysteresis state there is the one the live kernel has, and
     the creep clock of the parameter file starts there."""
     from cablesvc.recording import read_recording
-    rob = _robot(robot)
+    rob = as_robot(robot)
     rec = recording if not isinstance(recording, (str, os.PathLike)) else read_recording(recording)
     base = baseline_params(rob, params)
     s = build_signals(rec, rob, base)
     if since is not None and since > 0:
         rec, s = _since(rec, s, float(since))
-    return _discover_signals(rec, rob, base, s, terms=terms, selector=selector, block=block,
-                             exact_baseline=exact_baseline, t_origin=float(rec.t[0]))
+    return discover_signals(rec, rob, base, s, terms=terms, selector=selector, block=block,
+                            exact_baseline=exact_baseline, t_origin=float(rec.t[0]))
 
 
-def _discover_signals(rec: Any, rob: Robot, base: ModelParams, s: Signals, *, terms: Optional[list[Term]],
-                      selector: Any, block: float, exact_baseline: bool, t_origin: float,
-                      breaks: Optional[np.ndarray] = None) -> Discovery:
+def discover_signals(rec: Any, rob: Robot, base: ModelParams, s: Signals, *, terms: Optional[list[Term]],
+                     selector: Any, block: float, exact_baseline: bool, t_origin: float,
+                     breaks: Optional[np.ndarray] = None) -> Discovery:
     """Discovery on prepared signals ``s`` (:func:`discover` after :func:`build_signals`;
     the streamed path, :mod:`cablesvc.discover.stream`, with its reduced signals). ``rec``
     gives the pose for the equilibrium check; ``t_origin`` the creep clock's zero;

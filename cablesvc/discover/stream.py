@@ -40,87 +40,20 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
-import numba
 import numpy as np
 
 from cablesvc.config.params import ModelParams
 from cablesvc.config.robot import Robot
 from cablesvc.kinematics import inverse_kinematics
-from cablesvc.models.reversal import REVERSAL_DEADBAND
+from cablesvc.models.reversal import amplitude_stream
 from cablesvc.models.terms import Signals
 
-__all__ = ["ReducedRecording", "read_reduced", "discover_stream", "wants_stream", "amplitude_stream", "ANALYSIS_RATE", "MAX_GROUPS"]
+__all__ = ["ReducedRecording", "read_reduced", "discover_stream", "wants_stream", "ANALYSIS_RATE", "MAX_GROUPS"]
 
 #: default analysis rate [Hz]
 ANALYSIS_RATE = 100.0
 #: default most split groups kept (4 blocks of 2.5 s each: 160 s at 100 Hz)
 MAX_GROUPS = 16
-
-
-@numba.njit(cache=True)
-def _amp_stream(x, tol, st, out):
-    """:func:`cablesvc.models.reversal.reversal_amplitude` of one cable, sample by sample
-    with its state ``st`` carried (started, direction, extremum, hi, lo, hi newer than lo,
-    last reversal value, reversals seen, amplitude)."""
-    for i in range(x.shape[0]):
-        xi = x[i]
-        if st[0] == 0.0:
-            st[0] = 1.0
-            st[3] = xi
-            st[4] = xi
-            out[i] = st[8]
-            continue
-        d = st[1]
-        rev = False
-        ext_old = 0.0
-        if d == 0.0:
-            if xi > st[3]:
-                st[3] = xi
-                st[5] = 1.0
-            if xi < st[4]:
-                st[4] = xi
-                st[5] = 0.0
-            if st[3] - st[4] > tol:
-                st[1] = 1.0 if st[5] == 1.0 else -1.0
-                st[2] = st[3] if st[1] == 1.0 else st[4]
-        elif d == 1.0:
-            if xi >= st[2]:
-                st[2] = xi
-            elif st[2] - xi > tol:
-                rev = True
-                ext_old = st[2]
-                st[1] = -1.0
-                st[2] = xi
-        else:
-            if xi <= st[2]:
-                st[2] = xi
-            elif xi - st[2] > tol:
-                rev = True
-                ext_old = st[2]
-                st[1] = 1.0
-                st[2] = xi
-        if rev:
-            if st[7] >= 1.0:
-                st[8] = 0.5 * abs(ext_old - st[6])
-            st[6] = ext_old
-            st[7] += 1.0
-        out[i] = st[8]
-
-
-def amplitude_stream(x: np.ndarray, state: Optional[np.ndarray] = None, tol: float = REVERSAL_DEADBAND
-                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Reversal amplitude (N, m) of ``x`` (N, m) continuing from ``state`` ((m, 9), None at
-    the start): the pieces of a record give exactly :func:`reversal_amplitude` of the whole
-    record. Returns (amplitude, state)."""
-    x = np.asarray(x, float)
-    m = x.shape[1]
-    st = np.zeros((m, 9)) if state is None else state
-    out = np.empty_like(x)
-    for c in range(m):
-        col = np.empty(x.shape[0])
-        _amp_stream(np.ascontiguousarray(x[:, c]), float(tol), st[c], col)
-        out[:, c] = col
-    return out, st
 
 
 @dataclass
@@ -347,14 +280,14 @@ def discover_stream(path: Any, robot: Any, params: Any = None, *, terms: Optiona
     ticks of at most ``max_groups`` split groups spread over the whole recording. The
     :class:`~cablesvc.discover.pipeline.Discovery`'s ``options["stream"]`` says what was
     read and kept; its fits, held-out scores and parameter file come from the kept ticks."""
-    from cablesvc.discover.pipeline import _discover_signals, _robot, baseline_params
+    from cablesvc.discover.pipeline import as_robot, baseline_params, discover_signals
 
-    rob = _robot(robot)
+    rob = as_robot(robot)
     base = baseline_params(rob, params)
     red = read_reduced(path, rob, base, rate=rate, block=block, max_groups=max_groups, chunk_ticks=chunk_ticks)
     t_an = time.perf_counter()
-    d = _discover_signals(red, rob, base, red.signals, terms=terms, selector=selector, block=block,
-                          exact_baseline=exact_baseline, t_origin=float(red.info["t0"]), breaks=red.breaks)
+    d = discover_signals(red, rob, base, red.signals, terms=terms, selector=selector, block=block,
+                         exact_baseline=exact_baseline, t_origin=float(red.info["t0"]), breaks=red.breaks)
     red.info["analysis_seconds"] = time.perf_counter() - t_an
     d.options["stream"] = dict(red.info)
     return d
