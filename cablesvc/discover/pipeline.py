@@ -44,12 +44,21 @@ from cablesvc.models.reversal import reversal_amplitude
 from cablesvc.models.terms import Signals, Term, library
 
 __all__ = ["Discovery", "Finding", "DiscoveryError", "as_robot", "baseline_params", "backward_rate", "build_signals",
-           "split_blocks", "discover", "discover_signals"]
+           "describe_reduction", "split_blocks", "discover", "discover_signals"]
 
 
 def as_robot(robot: Union[Robot, str, "os.PathLike[str]"]) -> Robot:
     """``robot`` itself, or the robot file it names (:func:`cablesvc.config.robot.load_robot`)."""
     return robot if isinstance(robot, Robot) else load_robot(robot)
+
+
+def describe_reduction(st: dict[str, Any]) -> str:
+    """One line on what the streamed path (:mod:`cablesvc.discover.stream`) read and kept: the
+    ``stream`` entry of a discovery report or of a parameter file ``cablesvc identify`` wrote."""
+    return (f"streamed: {st['ticks']} ticks at {st['rate_hz']:.4g} Hz read in pieces, decimated to "
+            f"{st['analysis_rate_hz']:.4g} Hz by {st['decimation']}-tick means; analysed {st['groups_kept']} of "
+            f"{st['groups_seen']} split groups of {st['group_s']:g} s (stride {st['group_stride']}, "
+            f"{st['analysis_ticks']} ticks)")
 
 
 def baseline_params(robot: Robot, params: Union[None, str, "os.PathLike[str]", ModelParams] = None) -> ModelParams:
@@ -227,7 +236,6 @@ class Discovery:
         lines = [self.verdict()] if self.options.get("mode") == "identified" else []
         st = self.options.get("stream")
         if st:
-            from cablesvc.discover.stream import describe_reduction
             lines.append(describe_reduction(st) + "; fits and held-out scores are on those ticks")
         loc = self.location
         if loc["flagged"]:

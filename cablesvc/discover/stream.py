@@ -324,10 +324,3 @@ def reduced_recording(path: Any, robot: Robot, *, rate: float = ANALYSIS_RATE, b
     info = _reduction_info(src, acc, groups, int(n), block, max_groups, t_start)
     return rec, {**info, "gaps": int(breaks[1:].sum())}
 
-
-def describe_reduction(st: dict[str, Any]) -> str:
-    """One line on what the streamed path read and kept."""
-    return (f"streamed: {st['ticks']} ticks at {st['rate_hz']:.4g} Hz read in pieces, decimated to "
-            f"{st['analysis_rate_hz']:.4g} Hz by {st['decimation']}-tick means; analysed {st['groups_kept']} of "
-            f"{st['groups_seen']} split groups of {st['group_s']:g} s (stride {st['group_stride']}, "
-            f"{st['analysis_ticks']} ticks)")
