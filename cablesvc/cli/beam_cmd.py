@@ -9,9 +9,6 @@
 * ``paper``: all loops of 000 Sec 6 and Figs 6-7 as PNG files.
 * ``bridge``: fits the lumped Bouc-Wen cable model to the beam's loops and writes a
   parameter file for ``cablesvc run --params``.
-
-A bad argument or input file is a :class:`~cablesvc.cli.failures.UsageError`: one line,
-``cablesvc beam <action>: ...``, exit code 2.
 """
 
 from __future__ import annotations
@@ -24,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+# a bad argument or input file is a UsageError: one line, ``cablesvc beam <action>: ...``, exit code 2
+# (printed by cablesvc.cli.failures.run_command; this module's docstring is the command's --help)
 from cablesvc.cli.failures import UsageError
 from cablesvc.cli.paths import dir_problem, file_problem
 
