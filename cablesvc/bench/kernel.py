@@ -195,9 +195,15 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
         tracemalloc.start()
         for k in range(n_pre):
             pred.tick((warm + k) / rate, ml_all[k], p_in, q_in, None, temp)
+        # a full collection before each snapshot empties the interpreter's free lists (the
+        # small floats and tuples it keeps for reuse): how full they happen to be depends on
+        # everything the process did before (even which modules it imported), and made the
+        # figure swing by ~100 B over the stretch; what is left counts what the kernel keeps
+        gc.collect()
         before = tracemalloc.take_snapshot().filter_traces(_KERNEL_FILES)
         for k in range(n_alloc):
             pred.tick((warm + n_pre + k) / rate, ml_all[k % ticks], p_in, q_in, None, temp)
+        gc.collect()
         after = tracemalloc.take_snapshot().filter_traces(_KERNEL_FILES)
         tracemalloc.stop()
         grown = sum(st.size_diff for st in after.compare_to(before, "filename"))
