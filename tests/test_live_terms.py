@@ -14,7 +14,7 @@ from cablesvc.discover.pipeline import Discovery, baseline_params, build_signals
 from cablesvc.discover.select import Selection, fit_terms
 from cablesvc.kernel import Predictor
 from cablesvc.models.terms import LIBRARY, Recalibration, Sag, TermStack, term_class
-from cablesvc.models.reversal import reversal_amplitude
+from cablesvc.models.reversal import REVERSAL_DEADBAND, LiveReversalAmplitude, reversal_amplitude, reversal_points
 from cablesvc.simulate import TruthConfig, effect_from_spec, simulate_recording
 
 ROBOT = "ipanema3"
@@ -120,6 +120,35 @@ def test_live_amplitude_tracker_is_the_offline_rule():
     live = np.array([stack.rev.step(x[k][None, :])[0].copy() for k in range(x.shape[0])])
     np.testing.assert_array_equal(live, off)
     assert np.count_nonzero(off[:, 0]) > 3000
+
+
+def test_live_reversal_lanes_equal_the_whole_record_rule_exactly():
+    """The live lanes class (the kernel's numpy step over (lanes, cables)) and the
+    whole-record rule (numba) give the same amplitude bit for bit on a noisy sine, a
+    bus-quantised one, a flat-topped one, a random walk and a cable that starts late; every
+    lane of the same cable sees the same elongation, so also lane by lane."""
+    rng = np.random.default_rng(11)
+    n = 5000
+    t = np.arange(n) * 0.01
+    sine = 2e-4 * np.sin(0.9 * t)
+    cols = [
+        sine + 3e-7 * rng.standard_normal(n),                                      # noisy
+        np.round((sine + 2e-7 * rng.standard_normal(n)) / 1e-7) * 1e-7,           # quantised (0.1 um)
+        np.clip(2.5 * sine, -2e-4, 3e-4),                                           # flat tops and bottoms
+        np.cumsum(1e-6 * rng.standard_normal(n)),                                   # random walk
+        np.where(t < 20.0, 1e-3, 1e-3 + 5e-5 * np.sin(2.0 * (t - 20.0))),          # still, then moves
+    ]
+    x = np.column_stack(cols)
+    want = reversal_amplitude(x)
+    lanes = 3
+    live = LiveReversalAmplitude(lanes, x.shape[1], REVERSAL_DEADBAND)
+    got = np.empty((n, lanes, x.shape[1]))
+    for k in range(n):
+        got[k] = live.step(np.broadcast_to(x[k], (lanes, x.shape[1])))
+    for lane in range(lanes):
+        np.testing.assert_array_equal(got[:, lane], want)
+    assert all(reversal_points(x[:, c], REVERSAL_DEADBAND).size >= 10 for c in range(x.shape[1]))  # many turns
+    assert np.all(want[: int(20.0 / 0.01), 4] == 0.0)                                      # none while still
 
 
 def test_sag_newton_reaches_the_root():

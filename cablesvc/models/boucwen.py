@@ -1,6 +1,6 @@
 """Bouc-Wen hysteresis with a cubic term (eqs 1-5 of 000) and its integrators; the one home
 of the Bouc-Wen law (section "the law" below) that the models, the discovery term
-(models/terms.py), the benchmark oscillator (simulate/oscillator.py) and the beam
+(models/terms/hysteresis.py), the benchmark oscillator (simulate/oscillator.py) and the beam
 (beam/solver.py) all call."""
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ def max_live_substeps(integrator: str) -> int:
 #   by tick); the same arithmetic, so offline and live agree to the last bit.
 # numba's on-disk cache (cache=True) of a caller checks only the caller's own file: after an
 # edit of a numba form here, delete the callers' cached entries (the *.nbi / *.nbc of
-# simulate/oscillator.py, beam/solver.py and models/terms.py in their __pycache__) or they
+# simulate/oscillator.py, beam/solver.py and models/terms/hysteresis.py in their __pycache__) or they
 # keep running the old law.
 
 def bouc_wen_slope(z, sdx, k, beta, gamma, n, out, c, a):

@@ -1,0 +1,229 @@
+"""The terms of a parameter file, live (:class:`TermStack`): the signals the kernel gives them
+every tick over (lanes, cables), the amplitude tracker, the creep clock, the dead-time
+delay line and each term's live form, with all their state.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Optional
+
+import numpy as np
+
+from cablesvc.models.reversal import REVERSAL_DEADBAND, LiveReversalAmplitude
+from cablesvc.models.terms.base import Term
+from cablesvc.models.terms.catalogue import term_class
+from cablesvc.models.terms.recalibration import Recalibration
+from cablesvc.models.terms.signals import CableView
+
+__all__ = ["TermStack", "DELAY_WINDOW_S"]
+
+
+#: seconds of history the live dead-time line keeps (the largest dead time discovery fits)
+DELAY_WINDOW_S = 0.5
+
+
+class _DelayLine:
+    """The last ``n`` ticks of (lanes, m) signals with their times, in a doubled ring so
+    that the window is always one contiguous, time-ordered slice; :meth:`at` interpolates
+    linearly at t - tau per cable exactly as ``np.interp`` does offline (held at the oldest
+    value before it)."""
+
+    def __init__(self, n: int, k: int, lanes: int, m: int):
+        self.n = int(max(n, 2))
+        self.t = np.zeros(2 * self.n)
+        self.v = np.zeros((2 * self.n, k, lanes, m))
+        self.head = 0          # index of the newest sample in [0, n)
+        self.started = False
+        self.cols = np.arange(m)
+
+    def push(self, t: float, vals: np.ndarray) -> None:
+        if not self.started:
+            self.t.fill(t)
+            self.v[...] = vals
+            self.started = True
+            self.head = self.n - 1
+            return
+        h = (self.head + 1) % self.n
+        self.t[h] = self.t[h + self.n] = t
+        self.v[h] = vals
+        self.v[h + self.n] = vals
+        self.head = h
+
+    def at(self, q: np.ndarray, out: np.ndarray) -> None:
+        """Values (k, lanes, m) at times q (m,), into ``out``."""
+        lo = self.head + 1
+        tw = self.t[lo: lo + self.n]
+        vw = self.v[lo: lo + self.n]
+        j = np.searchsorted(tw, q, side="right") - 1
+        np.maximum(j, 0, out=j)                # (np.clip with int bounds keeps a small cache growing)
+        np.minimum(j, self.n - 1, out=j)
+        j1 = np.minimum(j + 1, self.n - 1)
+        ta, tb = tw[j], tw[j1]
+        va = vw[j, :, :, self.cols]            # (m, k, lanes)
+        vb = vw[j1, :, :, self.cols]
+        dtab = tb - ta
+        w = np.where(dtab > 0, (q - ta), 0.0)
+        safe = np.where(dtab > 0, dtab, 1.0)
+        slope = (vb - va) / safe[:, None, None]
+        res = slope * w[:, None, None] + va    # np.interp: slope (x - xp[j]) + fp[j]
+        np.copyto(out, np.moveaxis(res, 0, -1))
+
+    def state_dict(self, prefix: str) -> dict[str, np.ndarray]:
+        return {prefix + "t": self.t.copy(), prefix + "v": self.v.copy(),
+                prefix + "head": np.array([self.head, int(self.started)])}
+
+    def load_state_dict(self, d: dict[str, np.ndarray], prefix: str) -> None:
+        if prefix + "t" not in d or d[prefix + "t"].shape != self.t.shape:
+            return
+        np.copyto(self.t, d[prefix + "t"])
+        np.copyto(self.v, d[prefix + "v"])
+        self.head, started = (int(v) for v in d[prefix + "head"])
+        self.started = bool(started)
+
+
+class TermStack:
+    """The terms of a parameter file, live: every tick, from the kernel's baseline force f0,
+    elongation x, motor length, wrap angle, free length and temperature (lanes, m), the
+    sum of the terms' forces (lanes, m) [N].
+
+    It keeps the state the terms need: the previous x and motor length (dx/dt and the
+    sliding speed over the pulley by backward differences, 0 on the first tick), the
+    amplitude tracker, the creep clock (time since the recording's start that the parameter
+    file gives as ``terms_clock_origin``, else since the first tick), the dead-time delay line
+    (f0, x, dx/dt and A of the last :data:`DELAY_WINDOW_S` s at up to ``max_rate_hz``; the
+    other terms of a cable with a dead time see them delayed by its tau, as offline) and
+    each term's own state (Bouc-Wen z). All of it is in :meth:`state_dict`."""
+
+    def __init__(self, terms: list[Term], tables: dict[str, dict[str, Any]], m: int, lanes: int = 1,
+                 max_rate_hz: float = 2000.0, clock_origin: Optional[float] = None):
+        self.m, self.lanes = m, lanes
+        self.max_rate_hz = float(max_rate_hz)
+        self.delay = next((t for t in terms if t.delays_input), None)
+        self.live = [t.live(tables.get(t.name, {}), lanes, m) for t in terms if not t.delays_input]
+        shp = (lanes, m)
+        self.acc = np.zeros(shp)
+        self.v = np.zeros(shp)
+        self.v_slide = np.zeros(shp)
+        self.x_prev = np.zeros(shp)
+        self.ml_prev = np.zeros(shp)
+        self.temp = np.full((lanes, 1), np.nan)
+        self.clock = np.zeros((lanes, 1))
+        #: the creep clock's zero [s, in the ticks' time base]: the recording's start when the
+        #: parameter file gives it (``terms_clock_origin``), else the first tick
+        self.origin = None if clock_origin is None else float(clock_origin)
+        self.t0: Optional[float] = None
+        self.t_prev = 0.0
+        self.rev = LiveReversalAmplitude(lanes, m, REVERSAL_DEADBAND)
+        if self.delay is not None:
+            tau = np.asarray(tables.get(self.delay.name, {}).get("tau", np.zeros(m)), float).reshape(-1)
+            self.tau = np.clip(tau, 0.0, DELAY_WINDOW_S)
+            self.line = _DelayLine(int(math.ceil(DELAY_WINDOW_S * max_rate_hz)) + 2, 4, lanes, m)
+            self.packed = np.zeros((4, lanes, m))
+            self.delayed = np.zeros((4, lanes, m))
+            self.q = np.zeros(m)
+            self.dead = np.zeros(shp)
+        self.g = CableView(t=self.clock, f0=np.zeros(shp), x=np.zeros(shp), v=self.v, v_slide=self.v_slide,
+                           wrap=np.zeros(shp), free_length=np.zeros(shp), temperature=self.temp,
+                           amplitude=np.zeros(shp))
+
+    @classmethod
+    def from_params(cls, identification: dict[str, Any], m: int, lanes: int = 1,
+                    max_rate_hz: float = 2000.0) -> Optional["TermStack"]:
+        """The stack of a parameter file's ``[identification]`` section: the baseline's
+        recalibration (``term_baseline``) and the ``discovered_terms``; None when it has
+        neither."""
+        names = [n for n in [Recalibration.name] if f"term_{n}" in identification]
+        names += [n for n in identification.get("discovered_terms", []) if n not in names]
+        if not names:
+            return None
+        terms = [term_class(n) for n in names]
+        tables = {n: dict(identification.get(f"term_{n}", {})) for n in names}
+        origin = identification.get("terms_clock_origin")
+        return cls(terms, tables, m, lanes, max_rate_hz, None if origin is None else float(origin))
+
+    def prime(self, t: float, x: np.ndarray, motor_length: np.ndarray) -> None:
+        """Start a stack that has seen no tick from the previous tick's time, elongation and
+        motor length (a reload mid-run: the kernel before it ran without these terms), so
+        that the first tick's dx/dt and sliding speed are the real ones, not 0. No effect on
+        a stack that has run."""
+        if self.t0 is not None:
+            return
+        self.t0 = float(t) if self.origin is None else self.origin
+        self.t_prev = float(t)
+        self.x_prev[...] = x
+        self.ml_prev[...] = motor_length
+
+    def step(self, t: float, f0: np.ndarray, x: np.ndarray, motor_length: np.ndarray, wrap: np.ndarray,
+             free_length: np.ndarray, temperature: Optional[float]) -> np.ndarray:
+        """The terms' force (lanes, m) [N] at this tick (a buffer the next tick overwrites)."""
+        first = self.t0 is None
+        if first:
+            self.t0 = t if self.origin is None else self.origin
+            self.t_prev = t
+            np.copyto(self.x_prev, x)
+            np.copyto(self.ml_prev, motor_length)
+        dt = t - self.t_prev
+        inv = 1.0 / dt if dt > 0 else 0.0
+        np.subtract(x, self.x_prev, out=self.v)
+        np.multiply(self.v, inv, out=self.v)
+        np.subtract(self.ml_prev, motor_length, out=self.v_slide)
+        np.multiply(self.v_slide, inv, out=self.v_slide)
+        np.copyto(self.x_prev, x)
+        np.copyto(self.ml_prev, motor_length)
+        self.t_prev = t
+        self.clock.fill(t - self.t0)
+        self.temp.fill(np.nan if temperature is None else temperature)
+        A = self.rev.step(x)
+        g = self.g
+        np.copyto(g.wrap, wrap)
+        np.copyto(g.free_length, free_length)
+        self.acc.fill(0.0)
+        if self.delay is not None:
+            p = self.packed
+            np.copyto(p[0], f0)
+            np.copyto(p[1], x)
+            np.copyto(p[2], self.v)
+            np.copyto(p[3], A)
+            rel = t - self.t0                          # relative times, as offline (s.t - t[0])
+            self.line.push(rel, p)
+            np.subtract(rel, self.tau, out=self.q)
+            self.line.at(self.q, self.delayed)
+            d = self.delayed
+            np.subtract(d[0], f0, out=self.dead)       # f0(t - tau) - f0(t)
+            np.add(self.acc, self.dead, out=self.acc)
+            np.copyto(g.f0, d[0])
+            np.copyto(g.x, d[1])
+            np.copyto(self.v, d[2])
+            np.copyto(g.amplitude, d[3])
+        else:
+            np.copyto(g.f0, f0)
+            np.copyto(g.x, x)
+            np.copyto(g.amplitude, A)
+        for lt in self.live:
+            lt.step(g, self.acc)
+        return self.acc
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        if self.t0 is None:
+            return {}
+        d = {"t0": np.array([self.t0, self.t_prev]), "x_prev": self.x_prev.copy(), "ml_prev": self.ml_prev.copy()}
+        d.update(self.rev.state_dict("rev."))
+        if self.delay is not None:
+            d.update(self.line.state_dict("delay."))
+        for lt in self.live:
+            d.update({f"{lt.term.name}.{k}": v for k, v in lt.state_dict().items()})
+        return d
+
+    def load_state_dict(self, d: dict[str, np.ndarray]) -> None:
+        if "t0" not in d:
+            return
+        self.t0, self.t_prev = (float(v) for v in d["t0"])
+        np.copyto(self.x_prev, d["x_prev"])
+        np.copyto(self.ml_prev, d["ml_prev"])
+        self.rev.load_state_dict(d, "rev.")
+        if self.delay is not None:
+            self.line.load_state_dict(d, "delay.")
+        for lt in self.live:
+            pre = f"{lt.term.name}."
+            lt.load_state_dict({k[len(pre):]: v for k, v in d.items() if k.startswith(pre)})

@@ -1,0 +1,98 @@
+"""The baseline's own recalibration (:class:`Recalibration`): the nuisance every named term
+must beat in identified-baseline discovery (background: :mod:`cablesvc.discover.nuisance`),
+and the baseline's hysteretic part it is built on (:func:`hysteretic_part`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cablesvc.models.terms.base import Term
+from cablesvc.models.terms.material import (AmplitudeStiffness, AsymmetricHardening, amplitude_varies,
+                                            elongation_centre_scale)
+from cablesvc.models.terms.signals import Signals
+
+__all__ = ["Recalibration", "hysteretic_part"]
+
+
+def _backbone_refs(s: Signals, c: int) -> dict[str, float]:
+    x = s.x[:, c]
+    xm, sx = elongation_centre_scale(s, c)
+    u = (x - xm) / sx
+    V = np.column_stack([np.ones_like(u), u, u ** 2, u ** 3])
+    coef, *_ = np.linalg.lstsq(V[s.train], s.f0[s.train, c], rcond=None)
+    return {"x_mean": xm, "x_scale": sx, "h0": float(coef[0]), "h1": float(coef[1]), "h2": float(coef[2]),
+            "h3": float(coef[3])}
+
+
+def _hysteretic_part(f0, x, R, out, tmp) -> None:
+    """h = f0 - (h0 + h1 u + h2 u^2 + h3 u^3), u = (x - x_mean) / x_scale, into ``out``."""
+    np.subtract(x, R["x_mean"], out=tmp)
+    np.divide(tmp, R["x_scale"], out=tmp)
+    np.multiply(tmp, R["h3"], out=out)
+    np.add(out, R["h2"], out=out)
+    np.multiply(out, tmp, out=out)
+    np.add(out, R["h1"], out=out)
+    np.multiply(out, tmp, out=out)
+    np.add(out, R["h0"], out=out)
+    np.subtract(f0, out, out=out)
+
+
+def hysteretic_part(s: Signals, c: int) -> np.ndarray:
+    """The baseline's hysteretic part h (N,) [N] of cable ``c``: f0 minus the cubic in the
+    elongation that fits f0 best on the training ticks (the backbone)."""
+    out, tmp = np.empty(s.n), np.empty(s.n)
+    _hysteretic_part(s.f0[:, c], s.x[:, c], _backbone_refs(s, c), out, tmp)
+    return out
+
+
+class Recalibration(Term):
+    """Recalibration of the baseline's own parameters plus a smooth discrepancy in its own
+    state (the nuisance every named term must beat with an identified baseline):
+
+        delta_f = o + k_s f0 + a_h h + c2 xi^2 / s + c3 xi^3 / s^2 + K1_A (A - mean A) xi + d_A A tanh(v / v_s)
+
+    f0 the baseline force [N], xi = x - mean x [m], s its training std [m], h = f0 - P3(x)
+    the baseline's hysteretic part (f0 minus its least-squares cubic backbone in x on the
+    training ticks) [N], A the reversal amplitude [m] (002 eq 8), v_s = 1e-4 m/s. o [N],
+    k_s [-], a_h [-], c2, c3 [N], K1_A [N/m^2], d_A [N/m] (the last two only when A varies).
+    Background and references: :mod:`cablesvc.discover.nuisance`."""
+
+    name = "baseline"
+    label = "baseline recalibration (its own parameters and a smooth discrepancy in its own state)"
+    equation = ("o + k_s f0 + a_h h + c2 xi^2/s + c3 xi^3/s^2 + K1_A (A - mean A) xi + d_A A tanh(v/v_s)"
+                "  (002 eq 8, 001 Ch 4; Kennedy & O'Hagan 2001)")
+    variable = "baseline force f0 [N]"
+    params = ("o", "k_s", "a_h", "c2", "c3", "K1_A", "d_A")
+    units = ("N", "-", "-", "N", "N", "N/m^2", "N/m")
+    ref_names = ("x_mean", "x_scale", "h0", "h1", "h2", "h3", "A_mean")
+    owns_nuisance = True
+
+    def refs(self, s, c, h):
+        return {**_backbone_refs(s, c), "A_mean": s.train_mean(s.amplitude[:, c]),
+                "has_A": float(amplitude_varies(s, c))}
+
+    def columns(self, g, R, h, out):
+        o, ks, ah, c2 = out[:4]
+        o.fill(1.0)
+        np.copyto(ks, g.f0)
+        _hysteretic_part(g.f0, g.x, R, ah, c2)
+        # the backbone curvature and the amplitude dependence are the laws of those terms
+        _ASYMMETRIC.columns(g, R, h, out[3:5])           # xi^2 / s, xi^3 / s^2
+        _AMPLITUDE.columns(g, R, h, out[5:7])            # (A - mean A) xi, A tanh(v / v_s)
+
+    def design(self, s, c, h):
+        d = super().design(s, c, h)
+        return d if d.refs.get("has_A", 1.0) else d.without(("K1_A", "d_A"))
+
+    def evidence(self, s, c, h):
+        return s.f0[:, c]
+
+    def physical(self, params, h, s, c):
+        f0 = s.f0[:, c]
+        return {**params, "mean_f0_N": float(np.mean(f0)),
+                "offset_at_mean_N": float(params.get("o", 0.0) + params.get("k_s", 0.0) * np.mean(f0))}
+
+
+_ASYMMETRIC = AsymmetricHardening()
+_AMPLITUDE = AmplitudeStiffness()
