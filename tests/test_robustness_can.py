@@ -51,7 +51,12 @@ class SlowBus(VirtualBus):
             raise can.CanInitializationError("no such device")
         time.sleep(3.0)
         super().__init__(*a, **kw)
+        self.closed = False
         type(self).instances.append(self)
+
+    def shutdown(self):
+        self.closed = True
+        super().shutdown()
 
 
 @pytest.fixture()
@@ -127,9 +132,9 @@ def test_close_does_not_wait_for_a_slow_bus_open(robot, adapters):
     while not SlowBus.instances and time.monotonic() < end:
         time.sleep(0.05)
     assert len(SlowBus.instances) == 1
-    while not SlowBus.instances[0]._is_shutdown and time.monotonic() < end:
+    while not SlowBus.instances[0].closed and time.monotonic() < end:
         time.sleep(0.05)
-    assert SlowBus.instances[0]._is_shutdown
+    assert SlowBus.instances[0].closed
     assert not [th for th in threading.enumerate() if th.name.startswith("cablesvc-can-") and th.is_alive()
                 and th.name.endswith(str(src.config.channel))]
     assert src.counters.events == {"disconnected": 1}
