@@ -165,6 +165,7 @@ class LiveTerm:
         self.cols = np.zeros((len(term.params), lanes, m))
         self.prod = np.zeros_like(self.cols)
         self.buf = np.zeros((lanes, m))
+        self.P_lanes = self.P[:, None, :]       # (p, 1, m): broadcast over lanes, made once
 
     def _fix_hypers(self) -> None:
         """Hyper-parameters of cables without the term: values that keep the law finite
@@ -176,9 +177,14 @@ class LiveTerm:
     def step(self, g: CableView, acc: np.ndarray) -> None:
         if self.P.shape[0]:
             self.term.columns(g, self.R, self.H, self.cols)
-            np.multiply(self.cols, self.P[:, None, :], out=self.prod)
-            np.sum(self.prod, axis=0, out=self.buf)
-            np.add(acc, self.buf, out=acc)
+            self.add_linear(acc)
+
+    def add_linear(self, acc: np.ndarray) -> None:
+        """acc += sum over the parameters of P * the columns (in ``cols``). ``np.add.reduce``
+        is what ``np.sum`` calls, without its Python wrapper (same bits, a few us less)."""
+        np.multiply(self.cols, self.P_lanes, out=self.prod)
+        np.add.reduce(self.prod, axis=0, out=self.buf)
+        np.add(acc, self.buf, out=acc)
 
     def state_dict(self) -> dict[str, np.ndarray]:
         return {}

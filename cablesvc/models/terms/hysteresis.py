@@ -115,9 +115,7 @@ class _BoucWenLive(LiveTerm):
         # the law's beta is this term's gamma, its gamma this term's beta (see _bw_z)
         bouc_wen_step_n1_np(self.z, self.dx, self.H["gamma"], self.H["beta"], self.s, self.den)
         self.term.law(self.z, g.x, self.R["x_mean"], self.cols)
-        np.multiply(self.cols, self.P[:, None, :], out=self.prod)
-        np.sum(self.prod, axis=0, out=self.buf)
-        np.add(acc, self.buf, out=acc)
+        self.add_linear(acc)
 
     def state_dict(self):
         return {"z": self.z.copy(), "x_prev": self.x_prev.copy(), "started": self.started.copy()}
