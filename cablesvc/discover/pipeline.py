@@ -494,7 +494,7 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     from cablesvc.discover.evidence import block_gain_test, excess_test, holm, loo_errors
     from cablesvc.discover.locate import state_regions
     from cablesvc.discover.nuisance import Recalibration, describe_recalibration
-    from cablesvc.discover.select import DesignCache as _Cache
+    from cablesvc.discover.select import DesignCache
     from cablesvc.models.terms import LIBRARY
 
     m = s.m
@@ -504,7 +504,7 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     # BlockScreen passed in is used with its own options, any other selector is for the
     # exact-baseline mode, where every residual is physics
     screen = selector if isinstance(selector, BlockScreen) else BlockScreen(alpha=ALPHA, share_min=SHARE_MIN)
-    cache = _Cache()
+    cache = DesignCache()
     # test units: half a split block
     sel = screen.select(s, r, cands, train, valid, noise=noise, base=[nuis], cache=cache, block=block / 2.0)
     fitmask = train | valid
