@@ -133,10 +133,22 @@ def test_no_forces_message_is_lost_while_the_subscriber_stalls(endpoint):
             time.sleep(0.3)
             stalls.append(time.monotonic() - t0)
 
-    pub, lis = pair(endpoint, on_forces=on_forces)
+    # The daemon's config closes a link blocked for 1 s (BLOCK_CLOSE_US). On this shared VM the
+    # test once stopped at message 483 with nothing more for 15 s, most likely a stall of the
+    # listener's thread over 1 s that closed the link (not shown): the documented price of the
+    # 1 s, not what this test is about.
+    # Here the link may stay blocked 10 s, so only the congestion control is tested: under DROP
+    # the 300 ms stalls still lose a burst each (checked: 3 of 3 runs with DROP failed, at 838,
+    # 2385 and 2293 messages; with 4000 messages, all of which fit in the queue, DROP passed
+    # one run in two).
+    cfg = make_config(listen=(endpoint,))
+    cfg.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close", "10000000")
+    pub = Publisher("r1", cfg, encoding="json")
+    lis = Listener("r1", make_config(listen=(), connect=(endpoint,)), on_forces=on_forces)
+    wait_until(pub.subscribed, what="subscriber matched")
     try:
         out = tricky_output()
-        n = 4000
+        n = 20000       # ~5 MB: more than the 16-batch transmit queue holds, so DROP must lose
         for k in range(n):
             pub.publish_forces(forces_payload("r1", k, out, time.monotonic_ns(), names))
         wait_until(lambda: len(got) >= n, what=f"{n} forces messages (got {len(got)})")
