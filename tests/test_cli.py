@@ -91,3 +91,21 @@ def test_run_start_up_failures_are_one_clear_line(tmp_path):
             "--listen", f"tcp/127.0.0.1:{free_tcp_port()}")
     assert r.returncode == 1
     assert "source.interface" in r.stderr and "nosuchif" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_only_cablesvc_bench_builds_the_benchmarks_parsers():
+    """A command other than ``bench`` parses without importing the benchmark modules (they
+    pull in numpy, the robot model and the simulator: about a third of a second of start-up),
+    and ``cablesvc bench`` still has every benchmark."""
+    code = ("import sys\n"
+            "from cablesvc.cli.main import main\n"
+            "rc = main(sys.argv[1:])\n"
+            "print('BENCH', sorted(m for m in sys.modules if m.startswith('cablesvc.bench')))\n")
+    out = subprocess.run([sys.executable, "-c", code, "robots", "list"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert "BENCH []" in out.stdout
+    out = subprocess.run([sys.executable, "-m", "cablesvc", "bench", "--help"], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0, out.stderr
+    for name in ("kernel", "e2e", "soak", "alarms", "discover", "fleet", "read", "live-discovery", "discover-scale"):
+        assert f"    {name} " in out.stdout or f"    {name}\n" in out.stdout, name

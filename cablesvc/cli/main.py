@@ -169,7 +169,18 @@ def cmd_bench_kernel(args) -> int:
 
 # ---- parser ----------------------------------------------------------------------------
 
-def build_parser() -> argparse.ArgumentParser:
+def wants_bench(argv: list[str] | None) -> bool:
+    """Whether this command line is ``cablesvc bench ...``: its first word that is not an
+    option (the top level has only -h and --version, neither takes a value)."""
+    words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+    return bool(words) and words[0] == "bench"
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The whole command line. The benchmarks' own parsers (whose modules import numpy, the
+    robot model and the simulator: about 0.3 s) are built only for ``cablesvc bench ...``
+    (``argv``, default sys.argv[1:]): every other command starts without them, and the
+    top-level ``--help`` lists ``bench`` the same either way."""
     p = argparse.ArgumentParser(
         prog="cablesvc", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG,
         description="Real-time cable-force prediction with hysteresis for cable-driven parallel robots.")
@@ -210,6 +221,14 @@ def build_parser() -> argparse.ArgumentParser:
     rb.set_defaults(func=cmd_robots)
 
     b = sub.add_parser("bench", help="benchmarks (latency, accuracy, load)")
+    b.set_defaults(func=lambda a: (b.print_help(), 2)[1])
+    if wants_bench(argv):
+        _add_benches(b)
+    return p
+
+
+def _add_benches(b: argparse.ArgumentParser) -> None:
+    """The ``cablesvc bench`` subcommands."""
     bsub = b.add_subparsers(dest="bench", metavar="BENCH")
     bk = bsub.add_parser("kernel", help="per-tick latency of the fixed-time kernel",
                          description="100 000 ticks with gc frozen; p50/p99/p99.9/max per tick for normal and "
@@ -237,8 +256,6 @@ def build_parser() -> argparse.ArgumentParser:
     for bench in (e2e, soak, alarms, beam, discover, boucwen, cable_experiment, can_codec, record, fleet_bench,
                   read_bench, live_discovery, discover_scale):
         bench.add_parser(bsub)
-    b.set_defaults(func=lambda a: (b.print_help(), 2)[1])
-    return p
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -250,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None) -> int:
-    parser = build_parser()
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
