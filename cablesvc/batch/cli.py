@@ -14,7 +14,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 __all__ = ["add_fleet_arguments", "fleet_requested", "cmd_fleet"]
 
@@ -47,41 +47,37 @@ def _brief(row: dict[str, Any], command: str) -> str:
     return "RMSE [N] " + ", ".join(f"{v:.3g}" for v in row["rmse"])
 
 
-def cmd_fleet(command: str, args: argparse.Namespace, specs: Sequence[str], opts: dict[str, Any],
-              fail: Callable[[str], int]) -> int:
-    """Run ``command`` over the recordings ``specs`` name with job options ``opts``."""
+def cmd_fleet(command: str, args: argparse.Namespace, specs: Sequence[str], opts: dict[str, Any]) -> int:
+    """Run ``command`` over the recordings ``specs`` name with job options ``opts``. A fleet
+    that cannot run raises :class:`~cablesvc.errors.BatchError` (recordings that cannot be
+    found, a bad ``--workers``, an engine that does not start); the CLI prints it as one line."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from cablesvc.batch.inputs import FleetInputError, expand_recordings
-    from cablesvc.batch.run import DEFAULT_WORKERS, FleetEngineError, run_fleet
+    from cablesvc.batch.inputs import expand_recordings
+    from cablesvc.batch.run import DEFAULT_WORKERS, run_fleet
+    from cablesvc.errors import BatchError
 
-    try:
-        paths = expand_recordings(specs)
-    except FleetInputError as e:
-        return fail(str(e))
+    paths = expand_recordings(specs)
     workers = DEFAULT_WORKERS if args.workers is None else args.workers
     if workers < 1:
-        return fail(f"--workers: expected at least 1, got {workers}")
+        raise BatchError(f"--workers: expected at least 1, got {workers}")
     err = Console(stderr=True)
     quiet = bool(getattr(args, "quiet", False))
-    try:
-        with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                      console=err, transient=True, disable=quiet) as prog:
-            where = "serial" if args.serial else (args.scheduler or f"LocalCluster, {workers} workers")
-            task = prog.add_task(f"{command} ({where})", total=len(paths))
-            failed = [0]
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err, transient=True, disable=quiet) as prog:
+        where = "serial" if args.serial else (args.scheduler or f"LocalCluster, {workers} workers")
+        task = prog.add_task(f"{command} ({where})", total=len(paths))
+        failed = [0]
 
-            def cb(done: int, total: int, row: dict[str, Any]) -> None:
-                failed[0] += row["status"] != "ok"
-                prog.update(task, completed=done,
-                            description=f"{command}: {Path(row['recording']).name}"
-                                        + (f" [red]({failed[0]} failed)[/]" if failed[0] else ""))
+        def cb(done: int, total: int, row: dict[str, Any]) -> None:
+            failed[0] += row["status"] != "ok"
+            prog.update(task, completed=done,
+                        description=f"{command}: {Path(row['recording']).name}"
+                                    + (f" [red]({failed[0]} failed)[/]" if failed[0] else ""))
 
-            res = run_fleet(command, paths, opts, scheduler=args.scheduler, workers=workers, serial=args.serial,
-                            progress=cb)
-    except FleetEngineError as e:
-        return fail(str(e))
+        res = run_fleet(command, paths, opts, scheduler=args.scheduler, workers=workers, serial=args.serial,
+                        progress=cb)
     files: dict[str, str] = {}
     if args.report:
         from cablesvc.batch.report import write_fleet_report

@@ -20,7 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from cablesvc.errors import BatchError, CablesvcError, ConfigError, DiscoveryError
+from cablesvc.errors import CablesvcError, ConfigError, DiscoveryError
 
 __all__ = ["add_parser", "cmd_discover"]
 
@@ -32,11 +32,6 @@ def _as_discovery_error(e: Exception) -> CablesvcError:
     if isinstance(e, CablesvcError):
         return e
     return DiscoveryError(e.args[0] if isinstance(e, KeyError) and e.args else str(e))
-
-
-def _fleet_failure(msg: str) -> int:
-    """A fleet that cannot run (cablesvc.batch.cli): raised, printed as one line by the CLI."""
-    raise BatchError(msg)
 
 
 def cmd_discover(args: argparse.Namespace) -> int:
@@ -128,7 +123,7 @@ def _cmd_fleet(args, specs) -> int:
     opts = {"robot": os.path.abspath(args.robot) if args.robot and os.path.exists(args.robot) else args.robot,
             "params": os.path.abspath(args.params) if args.params else None, "terms": terms,
             "block": args.block, "min_gain": args.min_gain, "exact_baseline": bool(args.exact_baseline)}
-    return cmd_fleet("discover", args, specs, opts, _fleet_failure)
+    return cmd_fleet("discover", args, specs, opts)
 
 
 def _cmd_boucwen(args) -> int:

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from cablesvc.cli.paths import dir_problem, file_problem
-from cablesvc.errors import BatchError, CablesvcError, ConfigError, IdentifyError
+from cablesvc.errors import CablesvcError, ConfigError, IdentifyError
 
 __all__ = ["add_parser", "cmd_identify"]
 
@@ -43,11 +43,6 @@ examples:
 #: at 100 Hz): shorter ones, and every calibration recording of the benches (100 Hz, at
 #: most a minute), are fitted whole as before
 STREAM_MIN_TICKS = 20_000
-
-
-def _fleet_failure(msg: str) -> int:
-    """A fleet that cannot run (cablesvc.batch.cli): raised, printed as one line by the CLI."""
-    raise BatchError(msg)
 
 
 def _parse_cables(text: str | None) -> list[int] | None:
@@ -161,7 +156,7 @@ def _cmd_fleet(args: argparse.Namespace, specs: list[str], cables: list[int] | N
     opts = {"robot": os.path.abspath(args.robot) if args.robot and os.path.exists(args.robot) else args.robot,
             "model": args.model, "method": args.method, "cables": cables, "shared": bool(args.shared),
             "seed": args.seed, "particles": args.particles, "iterations": args.iterations}
-    return cmd_fleet("identify", args, specs, opts, _fleet_failure)
+    return cmd_fleet("identify", args, specs, opts)
 
 
 def _print_table(con: Any, fit: Any, format_value: Any) -> None:
