@@ -164,9 +164,9 @@ class LiveReversalAmplitude:
 # the state of one series, a float vector: samples seen, direction (0 before the first
 # move), running extremum and its index, the first extremes hi and lo and their indices,
 # the last reversal point, reversals seen, amplitude
-_N, _DIR, _EXT, _EXT_AT, _HI, _HI_AT, _LO, _LO_AT, _LAST, _SEEN, _AMP = range(11)
 #: length of one series' state in :func:`amplitude_stream`
 STREAM_STATE_SIZE = 11
+_N, _DIR, _EXT, _EXT_AT, _HI, _HI_AT, _LO, _LO_AT, _LAST, _SEEN, _AMP = range(STREAM_STATE_SIZE)
 
 
 @numba.njit(cache=True)
