@@ -255,9 +255,10 @@ class Discovery:
                          f"recalibrated: {d['words']}")
         eq = self.equilibrium
         if eq:
-            lines.append(f"equilibrium of the measured forces (002 eq 2): whitened wrench residual "
-                         f"{eq['ratio_raw']:.2f} -> {eq['ratio']:.2f} x noise ("
-                         + ("holds" if eq["holds"] else "does not hold") + ")")
+            lines.append(f"equilibrium of the measured forces (002 eq 2): wrench residual per row, in sensor-noise "
+                         f"variances, {eq['ratio_raw']:.2f} as measured and {eq['ratio']:.2f} on held-out blocks "
+                         f"after fitting the weight, inertia and sensor columns ("
+                         + ("holds" if eq["holds"] else "does not hold") + f": <= {eq['threshold']:g} holds)")
         for u in self.unexplained:
             lines.append(f"unexplained residual remains on cables {', '.join(map(str, u['cables']))}: "
                          f"{u['excess_rms_N']:.2g} N RMS beyond the noise, follows {u['variable']} "
