@@ -379,8 +379,8 @@ def test_amplitude_backbone_is_one_law_with_the_lookup_explicit():
 
 
 def test_twin_sag_and_sag_term_solve_the_same_irvine_equation():
-    """The twin's sag effect (iterated to convergence) and the discovery/live sag term (a
-    fixed count of Newton steps) share one solve and reach the same tension."""
+    """The twin's sag effect and the discovery/live sag term share one solve (the closed-form
+    root of the Irvine equation) and reach the same tension."""
     from cablesvc.models.terms import Sag as SagTerm
     from cablesvc.simulate.effects import RunInfo, Sag
 

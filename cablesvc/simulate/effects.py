@@ -287,8 +287,8 @@ class Sag(Effect, name="sag", stage="force", unit="N/m", default_magnitude=0.2,
 
         F = F_base + k s(F)
 
-    (Newton, per tick, from F_base, F floored at ``f_floor`` [N]; F - k s(F) is increasing
-    so the solution is unique). Sag thus raises the tension at a given elongation and
+    (in closed form, per tick, F floored at ``f_floor`` [N]; F - k s(F) is increasing so
+    the solution is unique). Sag thus raises the tension at a given elongation and
     lowers the stiffness, dF/dx = k_base / (1 + 2 k s / F) (Ernst's equivalent modulus);
     it matters only at low tension (s ~ 1/F^2), and a slack cable still carries its
     hanging tension. It is applied to the force rather than fed to the base model as
@@ -298,15 +298,12 @@ class Sag(Effect, name="sag", stage="force", unit="N/m", default_magnitude=0.2,
     (6 mm Dyneema: about 0.2 N/m)."""
 
     f_floor: float = 1.0
-    max_iter: int = 50
 
     def check(self) -> None:
         if self.magnitude < 0:
             raise SimulationError("effect sag: w must be >= 0 N/m")
         if self.f_floor <= 0:
             raise SimulationError("effect sag: f_floor must be > 0 N")
-        if int(self.max_iter) < 1:
-            raise SimulationError("effect sag: max_iter must be >= 1")
 
     def setup(self, run: RunInfo) -> None:
         self._k = np.array(run.stiffness, dtype=np.float64)
@@ -317,12 +314,11 @@ class Sag(Effect, name="sag", stage="force", unit="N/m", default_magnitude=0.2,
         return self.magnitude ** 2 * np.asarray(L, dtype=np.float64) ** 3 / (24.0 * F * F)
 
     def solve(self, f_base: np.ndarray, L: np.ndarray) -> np.ndarray:
-        """Tension F [N] with F = f_base + k s(F), per cable: Newton from max(f_base,
-        f_floor) until the steps fall below 1e-12 relative, at most ``max_iter`` steps
-        (:func:`cablesvc.models.catenary.irvine_tension`, the solve the sag term uses too)."""
+        """Tension F [N] with F = f_base + k s(F), per cable, floored at ``f_floor``: the
+        closed-form root of :func:`cablesvc.models.catenary.irvine_tension`, the solve the
+        sag term uses too."""
         kc = self._k * self.magnitude ** 2 * np.asarray(L, dtype=np.float64) ** 3 / 24.0
-        return irvine_tension(np.asarray(f_base, dtype=np.float64), kc, self.f_floor, steps=int(self.max_iter),
-                              cbrt_start=False, tol=1e-12)
+        return irvine_tension(np.asarray(f_base, dtype=np.float64), kc, self.f_floor)
 
     def apply(self, tick, value):
         return self.solve(value, tick.free_length)

@@ -142,8 +142,16 @@ def library(names: Optional[list[str]] = None) -> list[Term]:
 
 class LiveTerm:
     """The live form of a term whose law is :meth:`Term.columns` / :meth:`Term.fixed_part`:
-    per-cable parameters P (p, m), references and hyper-parameters (m,), and buffers
-    (p, lanes, m) allocated once. :meth:`step` adds the term's force to ``acc``."""
+    per-cable parameters P (p, m), references and hyper-parameters (m,), and its rows
+    ``cols`` (rows, lanes, m) with their coefficients ``coef`` (rows, 1, m): the p columns
+    of the linear parameters times P, then ``n_fixed`` rows of a part with no free
+    coefficient times 1. :meth:`write` writes the rows of this tick; the force is
+    sum over the rows of coef * cols. In the kernel, :class:`~cablesvc.models.terms.live.TermStack`
+    gives every term its slice of one buffer (:meth:`bind`) and sums all the terms' rows
+    at once; :meth:`step` runs one term alone."""
+
+    #: rows of a part with no free coefficient that :meth:`write` writes after the columns
+    n_fixed: int = 0
 
     def __init__(self, term: Term, table: dict[str, Any], lanes: int, m: int):
         self.term = term
@@ -156,16 +164,22 @@ class LiveTerm:
             return np.ascontiguousarray(v)
 
         self.P = np.stack([col(k) for k in term.params]) if term.params else np.zeros((0, m))
-        self.R = {k: col(k) for k in term.ref_names}
+        # references and hyper-parameters as (1, m): a ufunc on (lanes, m) buffers takes its
+        # fast path with them at lanes = 1 (a (m,) operand costs the broadcast machinery,
+        # ~0.8 us a call on 8 cables)
+        self.R = {k: col(k).reshape(1, m) for k in term.ref_names}
         # a cable without the term has scale-like references at 0: keep its columns finite
         if "x_scale" in self.R:
             self.R["x_scale"][self.R["x_scale"] <= 0] = 1.0
-        self.H = {k: col(k) for k in term.hypers}
+        self.H = {k: col(k).reshape(1, m) for k in term.hypers}
         self._fix_hypers()
-        self.cols = np.zeros((len(term.params), lanes, m))
+        p = len(term.params)
+        self.rows = p + self.n_fixed
+        self.cols = np.zeros((self.rows, lanes, m))
+        self.coef = np.ones((self.rows, 1, m))      # (rows, 1, m): broadcast over lanes
+        self.coef[:p, 0, :] = self.P
         self.prod = np.zeros_like(self.cols)
         self.buf = np.zeros((lanes, m))
-        self.P_lanes = self.P[:, None, :]       # (p, 1, m): broadcast over lanes, made once
 
     def _fix_hypers(self) -> None:
         """Hyper-parameters of cables without the term: values that keep the law finite
@@ -174,15 +188,27 @@ class LiveTerm:
             if k in ("v_s", "tau"):
                 v[v <= 0] = 1.0
 
-    def step(self, g: CableView, acc: np.ndarray) -> None:
+    def bind(self, cols: np.ndarray, coef: np.ndarray) -> None:
+        """Write from now on into ``cols`` (rows, lanes, m), a slice of the stack's buffer,
+        with this term's coefficients copied into ``coef`` (rows, 1, m), its slice."""
+        np.copyto(coef, self.coef)
+        self.cols, self.coef = cols, coef
+
+    def write(self, g: CableView) -> None:
+        """The rows of this tick into ``cols`` (the law's columns; a term with state
+        advances it here, once per tick)."""
         if self.P.shape[0]:
             self.term.columns(g, self.R, self.H, self.cols)
-            self.add_linear(acc)
+
+    def step(self, g: CableView, acc: np.ndarray) -> None:
+        """This term alone: acc += its force of this tick."""
+        self.write(g)
+        self.add_linear(acc)
 
     def add_linear(self, acc: np.ndarray) -> None:
-        """acc += sum over the parameters of P * the columns (in ``cols``). ``np.add.reduce``
-        is what ``np.sum`` calls, without its Python wrapper (same bits, a few us less)."""
-        np.multiply(self.cols, self.P_lanes, out=self.prod)
+        """acc += sum over the rows of coef * cols. ``np.add.reduce`` is what ``np.sum``
+        calls, without its Python wrapper (same bits, a few us less)."""
+        np.multiply(self.cols, self.coef, out=self.prod)
         np.add.reduce(self.prod, axis=0, out=self.buf)
         np.add(acc, self.buf, out=acc)
 

@@ -50,14 +50,11 @@ class Creep(Term):
 
     def columns(self, g, R, h, out):
         o0, o1, o2 = out
-        np.copyto(o2, R["k"])
-        np.negative(o2, out=o2)                        # -k (the creep before the clock's start)
+        np.negative(R["k"], out=o2)                    # -k (the creep before the clock's start)
         np.divide(g.t, h["tau"], out=o0)
         np.negative(o0, out=o0)
-        np.exp(o0, out=o0)
-        np.subtract(1.0, o0, out=o0)
-        np.multiply(o0, R["k"], out=o0)
-        np.negative(o0, out=o0)                        # -k (1 - exp(-t/tau))
+        np.expm1(o0, out=o0)
+        np.multiply(o0, R["k"], out=o0)                # -k (1 - exp(-t/tau)) = k expm1(-t/tau)
         np.multiply(g.t, R["k"], out=o1)
         np.negative(o1, out=o1)                        # -k t
 
@@ -92,7 +89,11 @@ class TemperatureStiffness(Term):
     def columns(self, g, R, h, out):
         o0, o1 = out
         np.subtract(g.temperature, R["T_mean"], out=o0)
-        np.nan_to_num(o0, copy=False, nan=0.0)         # no temperature: T = T_mean
+        # no temperature (NaN): T = T_mean. min(y, 0) + max(y, 0) is y exactly, and fmin/fmax
+        # take 0 for NaN (three ufuncs, no allocation; np.nan_to_num costs ~15 us a tick)
+        np.fmin(o0, 0.0, out=o1)
+        np.fmax(o0, 0.0, out=o0)
+        np.add(o0, o1, out=o0)
         np.multiply(o0, g.f0, out=o0)
         np.copyto(o1, g.f0)
 

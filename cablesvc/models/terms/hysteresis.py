@@ -106,7 +106,7 @@ class _BoucWenLive(LiveTerm):
         self.s = np.zeros((lanes, m))
         self.den = np.zeros((lanes, m))
 
-    def step(self, g, acc):
+    def write(self, g):
         # first tick: dx = 0, so z stays 0 (offline z[0] = 0)
         np.copyto(self.x_prev, g.x, where=~self.started[0])
         self.started[0] = True
@@ -115,7 +115,6 @@ class _BoucWenLive(LiveTerm):
         # the law's beta is this term's gamma, its gamma this term's beta (see _bw_z)
         bouc_wen_step_n1_np(self.z, self.dx, self.H["gamma"], self.H["beta"], self.s, self.den)
         self.term.law(self.z, g.x, self.R["x_mean"], self.cols)
-        self.add_linear(acc)
 
     def state_dict(self):
         return {"z": self.z.copy(), "x_prev": self.x_prev.copy(), "started": self.started.copy()}

@@ -24,10 +24,12 @@ DELAY_WINDOW_S = 0.5
 
 
 class _DelayLine:
-    """The last ``n`` ticks of (lanes, m) signals with their times, in a doubled ring so
+    """The last ``n`` ticks of k (lanes, m) signals with their times, in a doubled ring so
     that the window is always one contiguous, time-ordered slice; :meth:`at` interpolates
     linearly at t - tau per cable exactly as ``np.interp`` does offline (held at the oldest
-    value before it)."""
+    value before it, at the newest after it): both taps of every signal and cable come from
+    one ``np.take`` at indices (2, k, lanes, m) into the window, written into buffers made
+    once."""
 
     def __init__(self, n: int, k: int, lanes: int, m: int):
         self.n = int(max(n, 2))
@@ -35,39 +37,65 @@ class _DelayLine:
         self.v = np.zeros((2 * self.n, k, lanes, m))
         self.head = 0          # index of the newest sample in [0, n)
         self.started = False
-        self.cols = np.arange(m)
+        self._fill = False     # the first tick's row fills the whole window (commit)
+        size = k * lanes * m
+        #: (k, lanes, m): the flat offset of each signal and cable within one tick's row
+        self.offs = (np.arange(size).reshape(k, lanes, m)).astype(np.intp)
+        self.size = size
+        self.taps = np.zeros((2, m), np.intp)       # the taps' ticks in the window, per cable
+        self.tap_off = np.array([[-1], [0]], np.intp)
+        self.flat = np.zeros((2, k, lanes, m), np.intp)
+        self.tt = np.zeros((2, m))                  # the taps' times
+        self.vv = np.zeros((2, k, lanes, m))        # the taps' values
+        self.dtab = np.zeros(m)
+        self.w = np.zeros(m)
+        self.inside = np.zeros(m, bool)
 
-    def push(self, t: float, vals: np.ndarray) -> None:
+    def slot(self, t: float) -> np.ndarray:
+        """Advance by one tick at time ``t`` and return the row (k, lanes, m) to write this
+        tick's values into; :meth:`commit` then copies it into the ring's second half."""
         if not self.started:
             self.t.fill(t)
-            self.v[...] = vals
             self.started = True
             self.head = self.n - 1
-            return
+            self._fill = True
+            return self.v[self.head]
         h = (self.head + 1) % self.n
         self.t[h] = self.t[h + self.n] = t
-        self.v[h] = vals
-        self.v[h + self.n] = vals
         self.head = h
+        self._fill = False
+        return self.v[h]
+
+    def commit(self) -> None:
+        h = self.head
+        if self._fill:                              # the first tick: the whole window holds it
+            self.v[...] = self.v[h].copy()
+        else:
+            np.copyto(self.v[h + self.n], self.v[h])
 
     def at(self, q: np.ndarray, out: np.ndarray) -> None:
         """Values (k, lanes, m) at times q (m,), into ``out``."""
         lo = self.head + 1
         tw = self.t[lo: lo + self.n]
-        vw = self.v[lo: lo + self.n]
-        j = np.searchsorted(tw, q, side="right") - 1
-        np.maximum(j, 0, out=j)                # (np.clip with int bounds keeps a small cache growing)
-        np.minimum(j, self.n - 1, out=j)
-        j1 = np.minimum(j + 1, self.n - 1)
-        ta, tb = tw[j], tw[j1]
-        va = vw[j, :, :, self.cols]            # (m, k, lanes)
-        vb = vw[j1, :, :, self.cols]
-        dtab = tb - ta
-        w = np.where(dtab > 0, (q - ta), 0.0)
-        safe = np.where(dtab > 0, dtab, 1.0)
-        slope = (vb - va) / safe[:, None, None]
-        res = slope * w[:, None, None] + va    # np.interp: slope (x - xp[j]) + fp[j]
-        np.copyto(out, np.moveaxis(res, 0, -1))
+        j = np.searchsorted(tw, q, side="right")    # tw[j - 1] <= q < tw[j]
+        taps = self.taps
+        np.add(j, self.tap_off, out=taps)           # j - 1, j
+        np.maximum(taps, 0, out=taps)               # (np.clip with int bounds keeps a small cache growing)
+        np.minimum(taps, self.n - 1, out=taps)
+        np.take(tw, taps, out=self.tt, mode="clip")      # (in range; mode='raise' buffers out)
+        np.multiply(taps, self.size, out=taps)
+        np.add(taps[:, None, None, :], self.offs, out=self.flat)
+        np.take(self.v[lo: lo + self.n], self.flat, out=self.vv, mode="clip")
+        ta, tb = self.tt
+        np.subtract(tb, ta, out=self.dtab)
+        np.greater(self.dtab, 0.0, out=self.inside)
+        self.w.fill(0.0)                            # held (both taps one tick): x - xp[j] = 0
+        np.subtract(q, ta, out=self.w, where=self.inside)
+        va, vb = self.vv
+        np.subtract(vb, va, out=out)
+        np.divide(out, self.dtab, out=out, where=self.inside)
+        np.multiply(out, self.w, out=out)
+        np.add(out, va, out=out)                    # np.interp: slope (x - xp[j]) + fp[j]
 
     def state_dict(self, prefix: str) -> dict[str, np.ndarray]:
         return {prefix + "t": self.t.copy(), prefix + "v": self.v.copy(),
@@ -102,30 +130,42 @@ class TermStack:
         self.delay = next((t for t in terms if t.delays_input), None)
         self.live = [t.live(tables.get(t.name, {}), lanes, m) for t in terms if not t.delays_input]
         shp = (lanes, m)
+        # every term's rows (and the dead time's f0(t - tau) - f0(t), coefficient 1) in one
+        # buffer: the force is one multiply and one sum over the rows per tick
+        n_dead = 0 if self.delay is None else 1
+        rows = n_dead + sum(lt.rows for lt in self.live)
+        self.cols = np.zeros((rows, lanes, m))
+        self.coef = np.ones((rows, 1, m))
+        self.prod = np.zeros_like(self.cols)
+        r = n_dead
+        for lt in self.live:
+            lt.bind(self.cols[r: r + lt.rows], self.coef[r: r + lt.rows])
+            r += lt.rows
         self.acc = np.zeros(shp)
         self.v = np.zeros(shp)
         self.v_slide = np.zeros(shp)
         self.x_prev = np.zeros(shp)
         self.ml_prev = np.zeros(shp)
-        self.temp = np.full((lanes, 1), np.nan)
-        self.clock = np.zeros((lanes, 1))
+        self.temp = np.full(shp, np.nan)            # (lanes, m) as the other signals: ufuncs'
+        self.clock = np.zeros(shp)                  # fast path (no broadcasting) at lanes = 1
         #: the creep clock's zero [s, in the ticks' time base]: the recording's start when the
         #: parameter file gives it (``terms_clock_origin``), else the first tick
         self.origin = None if clock_origin is None else float(clock_origin)
         self.t0: Optional[float] = None
         self.t_prev = 0.0
         self.rev = LiveReversalAmplitude(lanes, m, REVERSAL_DEADBAND)
+        #: what the terms see: f0, x, dx/dt and A of this tick, or with a dead time, the delay
+        #: line's (f0, x, dx/dt, A)(t - tau), which :meth:`_DelayLine.at` writes in place
+        seen = np.zeros((4,) + shp)
         if self.delay is not None:
             tau = np.asarray(tables.get(self.delay.name, {}).get("tau", np.zeros(m)), float).reshape(-1)
             self.tau = np.clip(tau, 0.0, DELAY_WINDOW_S)
             self.line = _DelayLine(int(math.ceil(DELAY_WINDOW_S * max_rate_hz)) + 2, 4, lanes, m)
-            self.packed = np.zeros((4, lanes, m))
-            self.delayed = np.zeros((4, lanes, m))
+            self.delayed = seen
             self.q = np.zeros(m)
-            self.dead = np.zeros(shp)
-        self.g = CableView(t=self.clock, f0=np.zeros(shp), x=np.zeros(shp), v=self.v, v_slide=self.v_slide,
-                           wrap=np.zeros(shp), free_length=np.zeros(shp), temperature=self.temp,
-                           amplitude=np.zeros(shp))
+        self.g = CableView(t=self.clock, f0=seen[0], x=seen[1], v=seen[2] if self.delay is not None else self.v,
+                           v_slide=self.v_slide, wrap=np.zeros(shp), free_length=np.zeros(shp),
+                           temperature=self.temp, amplitude=seen[3])
 
     @classmethod
     def from_params(cls, identification: dict[str, Any], m: int, lanes: int = 1,
@@ -178,30 +218,25 @@ class TermStack:
         g = self.g
         np.copyto(g.wrap, wrap)
         np.copyto(g.free_length, free_length)
-        self.acc.fill(0.0)
         if self.delay is not None:
-            p = self.packed
-            np.copyto(p[0], f0)
-            np.copyto(p[1], x)
-            np.copyto(p[2], self.v)
-            np.copyto(p[3], A)
             rel = t - self.t0                          # relative times, as offline (s.t - t[0])
-            self.line.push(rel, p)
+            row = self.line.slot(rel)
+            np.copyto(row[0], f0)
+            np.copyto(row[1], x)
+            np.copyto(row[2], self.v)
+            np.copyto(row[3], A)
+            self.line.commit()
             np.subtract(rel, self.tau, out=self.q)
             self.line.at(self.q, self.delayed)
-            d = self.delayed
-            np.subtract(d[0], f0, out=self.dead)       # f0(t - tau) - f0(t)
-            np.add(self.acc, self.dead, out=self.acc)
-            np.copyto(g.f0, d[0])
-            np.copyto(g.x, d[1])
-            np.copyto(self.v, d[2])
-            np.copyto(g.amplitude, d[3])
+            np.subtract(g.f0, f0, out=self.cols[0])    # f0(t - tau) - f0(t)
         else:
             np.copyto(g.f0, f0)
             np.copyto(g.x, x)
             np.copyto(g.amplitude, A)
         for lt in self.live:
-            lt.step(g, self.acc)
+            lt.write(g)
+        np.multiply(self.cols, self.coef, out=self.prod)
+        np.add.reduce(self.prod, axis=0, out=self.acc)
         return self.acc
 
     def state_dict(self) -> dict[str, np.ndarray]:

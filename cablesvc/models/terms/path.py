@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from cablesvc.models.catenary import irvine_tension
+from cablesvc.models.catenary import IrvineScratch, irvine_tension
 from cablesvc.models.terms.base import LiveTerm, Term
 from cablesvc.models.terms.signals import smooth_sign
 
@@ -78,10 +78,11 @@ class Sag(Term):
 
         f = f0 + k_c s(f) = f0 + q L^3 / f^2,   q = w^2 k_c / 24 [N^3/m^3],   delta_f = f - f0
 
-    (:data:`cablesvc.models.catenary.SAG_NEWTON` Newton steps per tick; f - q L^3 / f^2 increases in f, so the root
-    above f0 is unique). q >= 0 is the nonlinear parameter (grid, then bounded scalar
-    search); the report gives w = sqrt(24 q / k) with k = EA / (mean free length). L the
-    free length, f >= 1 N."""
+    (the closed-form root of :func:`cablesvc.models.catenary.irvine_tension`, the same calls
+    every tick; f - q L^3 / f^2 increases in f, so the root is unique). q >= 0 is the
+    nonlinear parameter (grid, then bounded scalar search; a parameter file with q < 0 is
+    refused live); the report gives w = sqrt(24 q / k) with k = EA / (mean free length).
+    L the free length, f >= 1 N."""
 
     name = "sag"
     label = "sag at low tension"
@@ -96,19 +97,18 @@ class Sag(Term):
     def grid(self, s):
         return [{"q": q} for q in np.r_[0.0, np.geomspace(1.0, 1e8, 25)]]
 
-    #: the tension under sag (:func:`cablesvc.models.catenary.irvine_tension`, by default
-    #: :data:`SAG_NEWTON` Newton steps from max(f0, cbrt(cc), 1 N), fixed time)
+    #: the tension under sag (:func:`cablesvc.models.catenary.irvine_tension`: closed form,
+    #: floored at 1 N, fixed time)
     solve = staticmethod(irvine_tension)
 
     def fixed_part(self, g, R, h, out):
         cc = np.empty(np.shape(out))
-        tmp = np.empty((2,) + np.shape(out))
-        self._fixed(g, h, out, cc, tmp)
+        self._fixed(g, h, out, cc, IrvineScratch(np.shape(out)))
 
-    def _fixed(self, g, h, out, cc, tmp):
+    def _fixed(self, g, h, out, cc, scratch):
         np.power(g.free_length, 3, out=cc)
         np.multiply(cc, h["q"], out=cc)
-        self.solve(g.f0, cc, out=out, tmp=tmp)
+        self.solve(g.f0, cc, out=out, scratch=scratch)
         np.maximum(g.f0, 1.0, out=cc)
         np.subtract(out, cc, out=out)
 
@@ -124,11 +124,19 @@ class Sag(Term):
 
 
 class _SagLive(LiveTerm):
+    """The sag term live: one row, its fixed part (no linear parameter)."""
+
+    n_fixed = 1
+
     def __init__(self, term, table, lanes, m):
         super().__init__(term, table, lanes, m)
+        q = self.H["q"].reshape(-1)
+        bad = np.flatnonzero(~(np.isfinite(q) & (q >= 0)))
+        if bad.size:                # the closed form needs cc >= 0: refused, not NaN forces
+            raise ValueError(f"term_{term.name}.q: {float(q[bad[0]])!r} on cable {int(bad[0])}: must be a finite "
+                             "number >= 0 N^3/m^3")
         self.cc = np.zeros((lanes, m))
-        self.tmp = np.zeros((2, lanes, m))
+        self.scratch = IrvineScratch((lanes, m))
 
-    def step(self, g, acc):
-        self.term._fixed(g, self.H, self.buf, self.cc, self.tmp)
-        np.add(acc, self.buf, out=acc)
+    def write(self, g):
+        self.term._fixed(g, self.H, self.cols[0], self.cc, self.scratch)
