@@ -255,14 +255,15 @@ def test_end_to_end_discover_file_runs_live(robot, exact):
 
 def test_bench_kernel_terms_rows_report_the_ratio():
     """The bench row with every term on every cable runs (planar4 and ipanema3 layouts) and
-    reports its p50 against the normal run of the same call."""
+    reports its p50 against the same kernel without terms, timed in alternate blocks."""
     from cablesvc.bench.kernel import as_dicts, run_kernel_bench
     res = as_dicts(run_kernel_bench("planar4", ticks=300, inputs=("normal", "terms", "terms_no_temperature"),
                                     machine_baseline=False))
     by = {r["input"]: r for r in res}
     assert "kernel_p50_ratio" not in by["normal"]
     for k in ("terms", "terms_no_temperature"):
-        assert by[k]["kernel_p50_ratio"] == pytest.approx(by[k]["p50_us"] / by["normal"]["p50_us"])
+        assert by[k]["plain_p50_us"] > 0
+        assert by[k]["kernel_p50_ratio"] == pytest.approx(by[k]["p50_us"] / by[k]["plain_p50_us"])
 
 
 def test_creep_clock_starts_at_the_files_origin():

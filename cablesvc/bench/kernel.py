@@ -10,7 +10,11 @@ per tick. The normal run is the baseline the adversarial runs are compared with,
 the same process and run. The ``terms`` runs put every library term and the baseline
 recalibration on every cable (:func:`all_terms_params`) on the normal input, on the slack
 input (sag near slack) and without a temperature channel; their ``kernel_p50_ratio`` is
-their p50 over the normal run's p50 in the same run (issue 16).
+their p50 over the p50 of the same kernel without terms on the same input, timed in blocks
+of 500 ticks that alternate with the term run (``plain_p50_us``; issue 16). Alternating
+matters here: on the shared development machine the plain kernel's p50 moved between 55
+and 110 us from one run to the next a minute later, so a ratio against a separate run
+moved by 2 x with it.
 
 A second baseline, ``input = "machine"``, says what this machine's timer and scheduler
 allow: a fixed workload of ``calls`` numpy additions on 8-element arrays (the kind of
@@ -40,7 +44,7 @@ from cablesvc.models import ModelParameterError
 
 INPUTS = ("normal", "reversal", "slack", "large", "no_pose", "terms", "terms_slack", "terms_no_temperature")
 #: the runs with every library term (and the baseline recalibration) on every cable, on
-#: the input named after the prefix (issue 16: ``kernel_p50_ratio`` = terms p50 / normal p50)
+#: the input named after the prefix (issue 16: ``kernel_p50_ratio`` = terms p50 / plain p50, alternating)
 TERM_INPUTS = {"terms": "normal", "terms_slack": "slack", "terms_no_temperature": "normal"}
 #: where the kernel's memory is allocated: tracemalloc sees every thread, and the progress
 #: bar's refresh thread must not count as the kernel's
@@ -75,7 +79,8 @@ class KernelBenchResult:
     alloc_bytes_per_tick: float
     calls: int | None = None          # machine baseline only: numpy calls per "tick"
     scheduling: str = "default"
-    kernel_p50_ratio: float | None = None   # terms runs: p50 / the normal run's p50 (same run)
+    kernel_p50_ratio: float | None = None   # terms runs: p50 / the plain kernel's p50, interleaved
+    plain_p50_us: float | None = None       # terms runs: p50 of the plain kernel in the alternate blocks
 
 
 def _fixed_work(n: int, a: np.ndarray = np.ones(8), b: np.ndarray = np.zeros(8)) -> None:
@@ -176,7 +181,6 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
     sched = set_scheduling(cpu, realtime)
     results = []
     baseline: KernelBenchResult | None = None
-    normal_p50: float | None = None
     for kind in inputs:
         ml_all = make_inputs(TERM_INPUTS.get(kind, kind), L, x_pre, ticks, rate)
         pred = Predictor(geom, all_terms_params(params, geom.n_cables) if kind in TERM_INPUTS else params)
@@ -189,6 +193,13 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
         warm = max(min(1000, ticks // 10), 3000 if kind in TERM_INPUTS else 0)
         for k in range(warm):
             pred.tick(k / rate, ml_all[k % ticks], p_in, q_in, None, temp)
+        # a term run is compared with the same kernel without terms on the same input, timed
+        # in blocks that alternate with it: both see the same machine conditions (this shared
+        # machine's speed drifts by 2 x between runs a minute apart)
+        plain = Predictor(geom, params) if kind in TERM_INPUTS else None
+        if plain is not None:
+            for k in range(warm):
+                plain.tick(k / rate, ml_all[k % ticks], p_in, q_in, None, temp)
         # allocation per tick, traced, over a separate stretch
         n_alloc = min(10_000, ticks)
         n_pre = min(ALLOC_WARMUP, ticks)      # sized to the run: short runs have fewer inputs
@@ -224,6 +235,7 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
             calls = calibrate_calls(float(np.median(probe)) / 1e3)
             base_d = np.empty(ticks - ticks % block, dtype=np.int64)
             t0 += probe.size / rate
+        plain_d = np.empty(ticks - ticks % block, dtype=np.int64) if plain is not None else None
         gc.collect()
         gc.freeze()
         gc.disable()
@@ -238,6 +250,11 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
                         a = clock()
                         _fixed_work(calls)
                         base_d[j] = clock() - a
+                if plain_d is not None and k % block == block - 1:   # the plain kernel, same ticks
+                    for j in range(k - block + 1, k + 1):
+                        a = clock()
+                        plain.tick(t0 + j / rate, ml_all[j], p_in, q_in, None, temp)
+                        plain_d[j] = clock() - a
                 if progress is not None and k % 5000 == 0:
                     progress(kind, k, ticks)
         finally:
@@ -252,14 +269,14 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
                 calls=calls, scheduling=sched)
         us = durations / 1e3
         p50 = float(np.percentile(us, 50))
-        if kind == "normal":
-            normal_p50 = p50
+        plain_p50 = float(np.percentile(plain_d / 1e3, 50)) if plain_d is not None and plain_d.size else None
         results.append(KernelBenchResult(
             robot=robot, model=params.model, input=kind, ticks=ticks,
             p50_us=p50, p99_us=float(np.percentile(us, 99)),
             p999_us=float(np.percentile(us, 99.9)), max_us=float(us.max()),
             alloc_bytes_per_tick=float(alloc_per_tick), scheduling=sched,
-            kernel_p50_ratio=(p50 / normal_p50 if kind in TERM_INPUTS and normal_p50 else None)))
+            kernel_p50_ratio=(p50 / plain_p50 if plain_p50 else None),
+            plain_p50_us=plain_p50))
     if baseline is not None:
         results.append(baseline)
     return results
@@ -273,6 +290,8 @@ def as_dicts(results: list[KernelBenchResult]) -> list[dict]:
         d = asdict(r)
         if r.kernel_p50_ratio is None:
             del d["kernel_p50_ratio"]
+        if r.plain_p50_us is None:
+            del d["plain_p50_us"]
         if r.calls is None:
             del d["calls"]
             if r.scheduling == "default":
