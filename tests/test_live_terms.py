@@ -13,7 +13,7 @@ from cablesvc.discover import discover
 from cablesvc.discover.pipeline import Discovery, baseline_params, build_signals, split_blocks
 from cablesvc.discover.select import Selection, fit_terms
 from cablesvc.kernel import Predictor
-from cablesvc.models.terms import LIBRARY, Recalibration, Sag, TermStack, term_class
+from cablesvc.models.terms import LIBRARY, Recalibration, Sag, TermStack, cable_view, term_class
 from cablesvc.models.reversal import REVERSAL_DEADBAND, LiveReversalAmplitude, reversal_amplitude, reversal_points
 from cablesvc.simulate import TruthConfig, effect_from_spec, simulate_recording
 
@@ -37,12 +37,15 @@ def _recording(spec: str, seed: int = 5, scenario: str = "trajectory", duration:
 SCENARIO = {"amplitude": "hold-sine", "baseline": "hold-sine"}
 
 
-def _discovery(rec, robot, names: list[str]) -> Discovery:
+def _discovery(rec, robot, names: list[str], train_first_half: bool = False) -> Discovery:
     """Fit ``names`` (the deadtime first when present, as the selector orders it) on every
-    cable on all ticks, the way the pipeline's final fit does, into a Discovery."""
+    cable on all ticks, the way the pipeline's final fit does, into a Discovery.
+    ``train_first_half``: the references come from the first half of the ticks only."""
     base = baseline_params(robot)
     s = build_signals(rec, robot, base)
     train, valid, test = split_blocks(s.t, 2.0)
+    if train_first_half:
+        train = s.t < np.median(s.t)
     s.train = train
     r = s.y - s.f0
     terms = [term_class(n) for n in names]
@@ -108,6 +111,49 @@ def test_snapshot_mid_run_gives_the_uninterrupted_forces(robot, tmp_path):
     p2.load_state_dict(state)
     second, _ = _kernel_forces(rec, robot, params, half, None, pred=p2)
     np.testing.assert_array_equal(np.vstack([first, second]), whole)
+
+
+def test_recalibration_discrepancy_is_held_within_its_training_range(robot, tmp_path):
+    """Referenced on the first half of a hold-sine recording, the recalibration's amplitude
+    columns meet larger amplitudes in the second half than the training ticks had: they are
+    held at the training range (without the bounds they leave it on every cable), and the
+    live kernel holds them exactly as the offline form does."""
+    rec = _recording(EFFECT["baseline"], scenario="hold-sine")
+    s = build_signals(rec, robot, baseline_params(robot))
+    s.train = s.t < np.median(s.t)
+    rc = Recalibration()
+    idx = {n: rc.params.index(n) for n in ("K1_A", "d_A")}
+    left = 0
+    for c in range(s.m):
+        d = rc.design(s, c, {})
+        unbounded = dict(d.refs, **{f"{side}_{n}": v for n in idx for side, v in (("lo", -np.inf), ("hi", np.inf))})
+        raw = np.empty((len(rc.params), s.n))
+        rc.columns(cable_view(s, c), unbounded, {}, raw)
+        for n, j in idx.items():
+            lo, hi = d.refs[f"lo_{n}"], d.refs[f"hi_{n}"]
+            col = d.X[:, d.names.index(n)]
+            assert lo <= hi and np.all(col >= lo) and np.all(col <= hi)
+            np.testing.assert_array_equal(col[s.train], raw[j][s.train])      # untouched where fitted
+            np.testing.assert_array_equal(col, np.clip(raw[j], lo, hi))
+            left += int(np.any((raw[j] < lo) | (raw[j] > hi)))
+    assert left == 2 * s.m, "the second half reaches beyond the first half's range on every cable"
+
+    dis = _discovery(rec, robot, ["baseline"], train_first_half=True)
+    path = tmp_path / "augmented.toml"
+    dis.augmented_params().save(path)
+    params = load_params(path)
+    assert "lo_d_A" in params.identification["term_baseline"]
+    live, _ = _kernel_forces(rec, robot, params)
+    off = dis.predict()
+    assert np.max(np.abs(live - off) / np.maximum(np.abs(off), 1.0)) < 1e-9
+
+
+def test_recalibration_file_without_bounds_runs_unclamped():
+    """A parameter file written before the bounds existed has no ``lo_``/``hi_`` references:
+    its discrepancy runs unclamped, as it did when it was written."""
+    live = Recalibration().live({"k_s": [0.01] * 8, "d_A": [1.0] * 8, "lo_K1_A": [-2.0] * 8}, 1, 8)
+    assert np.all(live.R["lo_d_A"] == -np.inf) and np.all(live.R["hi_d_A"] == np.inf)
+    assert np.all(live.R["hi_K1_A"] == np.inf) and np.all(live.R["lo_K1_A"] == -2.0)
 
 
 def test_live_amplitude_tracker_is_the_offline_rule():

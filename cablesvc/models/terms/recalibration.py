@@ -10,7 +10,7 @@ import numpy as np
 from cablesvc.models.terms.base import Term
 from cablesvc.models.terms.material import (AmplitudeStiffness, AsymmetricHardening, amplitude_varies,
                                             elongation_centre_scale)
-from cablesvc.models.terms.signals import Signals
+from cablesvc.models.terms.signals import Signals, cable_view
 
 __all__ = ["Recalibration", "hysteretic_part"]
 
@@ -46,6 +46,10 @@ def hysteretic_part(s: Signals, c: int) -> np.ndarray:
     return out
 
 
+#: the discrepancy columns held within their training range: (parameter, column index)
+_CLAMPED = (("K1_A", 5), ("d_A", 6))
+
+
 class Recalibration(Term):
     """Recalibration of the baseline's own parameters plus a smooth discrepancy in its own
     state (the nuisance every named term must beat with an identified baseline):
@@ -56,7 +60,18 @@ class Recalibration(Term):
     the baseline's hysteretic part (f0 minus its least-squares cubic backbone in x on the
     training ticks) [N], A the reversal amplitude [m] (002 eq 8), v_s = 1e-4 m/s. o [N],
     k_s [-], a_h [-], c2, c3 [N], K1_A [N/m^2], d_A [N/m] (the last two only when A varies).
-    Background and references: :mod:`cablesvc.discover.nuisance`."""
+    Background and references: :mod:`cablesvc.discover.nuisance`.
+
+    The four discrepancy columns (c2, c3, K1_A, d_A) are held within the range they took on
+    the training ticks (references ``lo_<name>``, ``hi_<name>``), offline and live. They are
+    an empirical correction, fitted where the recording went; outside that support a cubic
+    or an amplitude column extrapolates without limit (measured on the realistic bench's
+    development seed 7: a held-out stretch after a long dwell, whose reversal amplitude the
+    training ticks never reached with that sign of speed, left 184 x the noise instead of
+    22 x). Held at its edge, the correction there is the one at the nearest state it was
+    fitted on, as a discrepancy with a prior reverts to it away from its data (Kennedy &
+    O'Hagan 2001). The baseline's own parameters (o, k_s, a_h) are physical and are not
+    clamped. A file written without these references runs unclamped."""
 
     name = "baseline"
     label = "baseline recalibration (its own parameters and a smooth discrepancy in its own state)"
@@ -65,14 +80,21 @@ class Recalibration(Term):
     variable = "baseline force f0 [N]"
     params = ("o", "k_s", "a_h", "c2", "c3", "K1_A", "d_A")
     units = ("N", "-", "-", "N", "N", "N/m^2", "N/m")
-    ref_names = ("x_mean", "x_scale", "h0", "h1", "h2", "h3", "A_mean")
+    ref_names = ("x_mean", "x_scale", "h0", "h1", "h2", "h3", "A_mean",
+                 *(f"{side}_{n}" for n, _ in _CLAMPED for side in ("lo", "hi")))
     owns_nuisance = True
 
     def refs(self, s, c, h):
-        return {**_backbone_refs(s, c), "A_mean": s.train_mean(s.amplitude[:, c]),
-                "has_A": float(amplitude_varies(s, c))}
+        R = {**_backbone_refs(s, c), "A_mean": s.train_mean(s.amplitude[:, c]),
+             "has_A": float(amplitude_varies(s, c))}
+        X = np.empty((len(self.params), s.n))
+        self._columns(cable_view(s, c), R, h, X)
+        for n, j in _CLAMPED:
+            v = X[j][s.train]
+            R[f"lo_{n}"], R[f"hi_{n}"] = float(v.min()), float(v.max())
+        return R
 
-    def columns(self, g, R, h, out):
+    def _columns(self, g, R, h, out):
         o, ks, ah, c2 = out[:4]
         o.fill(1.0)
         np.copyto(ks, g.f0)
@@ -80,6 +102,20 @@ class Recalibration(Term):
         # the backbone curvature and the amplitude dependence are the laws of those terms
         _ASYMMETRIC.columns(g, R, h, out[3:5])           # xi^2 / s, xi^3 / s^2
         _AMPLITUDE.columns(g, R, h, out[5:7])            # (A - mean A) xi, A tanh(v / v_s)
+
+    def columns(self, g, R, h, out):
+        self._columns(g, R, h, out)
+        for n, j in _CLAMPED:                            # the discrepancy within its support
+            np.maximum(out[j], R[f"lo_{n}"], out=out[j])
+            np.minimum(out[j], R[f"hi_{n}"], out=out[j])
+
+    def live(self, table, lanes, m):
+        lt = super().live(table, lanes, m)
+        for n, _ in _CLAMPED:                            # a file without the bounds: unclamped
+            for side, unbounded in (("lo", -np.inf), ("hi", np.inf)):
+                if f"{side}_{n}" not in table:
+                    lt.R[f"{side}_{n}"].fill(unbounded)
+        return lt
 
     def design(self, s, c, h):
         d = super().design(s, c, h)
