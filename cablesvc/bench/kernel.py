@@ -269,7 +269,7 @@ def run_kernel_bench(robot: str = "ipanema3", model: str = "amplitude", params_f
                 calls=calls, scheduling=sched)
         us = durations / 1e3
         p50 = float(np.percentile(us, 50))
-        plain_p50 = float(np.percentile(plain_d / 1e3, 50)) if plain_d is not None and plain_d.size else None
+        plain_p50 = float(np.percentile(plain_d / 1e3, 50)) if plain_d is not None else None
         results.append(KernelBenchResult(
             robot=robot, model=params.model, input=kind, ticks=ticks,
             p50_us=p50, p99_us=float(np.percentile(us, 99)),

@@ -148,7 +148,7 @@ class LiveTerm:
     coefficient times 1. :meth:`write` writes the rows of this tick; the force is
     sum over the rows of coef * cols. In the kernel, :class:`~cablesvc.models.terms.live.TermStack`
     gives every term its slice of one buffer (:meth:`bind`) and sums all the terms' rows
-    at once; :meth:`step` runs one term alone."""
+    at once (the only place the live force is summed)."""
 
     #: rows of a part with no free coefficient that :meth:`write` writes after the columns
     n_fixed: int = 0
@@ -178,8 +178,6 @@ class LiveTerm:
         self.cols = np.zeros((self.rows, lanes, m))
         self.coef = np.ones((self.rows, 1, m))      # (rows, 1, m): broadcast over lanes
         self.coef[:p, 0, :] = self.P
-        self.prod = np.zeros_like(self.cols)
-        self.buf = np.zeros((lanes, m))
 
     def _fix_hypers(self) -> None:
         """Hyper-parameters of cables without the term: values that keep the law finite
@@ -199,18 +197,6 @@ class LiveTerm:
         advances it here, once per tick)."""
         if self.P.shape[0]:
             self.term.columns(g, self.R, self.H, self.cols)
-
-    def step(self, g: CableView, acc: np.ndarray) -> None:
-        """This term alone: acc += its force of this tick."""
-        self.write(g)
-        self.add_linear(acc)
-
-    def add_linear(self, acc: np.ndarray) -> None:
-        """acc += sum over the rows of coef * cols. ``np.add.reduce`` is what ``np.sum``
-        calls, without its Python wrapper (same bits, a few us less)."""
-        np.multiply(self.cols, self.coef, out=self.prod)
-        np.add.reduce(self.prod, axis=0, out=self.buf)
-        np.add(acc, self.buf, out=acc)
 
     def state_dict(self) -> dict[str, np.ndarray]:
         return {}

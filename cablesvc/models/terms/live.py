@@ -235,6 +235,7 @@ class TermStack:
             np.copyto(g.amplitude, A)
         for lt in self.live:
             lt.write(g)
+        # np.add.reduce is what np.sum calls, without its Python wrapper (same bits)
         np.multiply(self.cols, self.coef, out=self.prod)
         np.add.reduce(self.prod, axis=0, out=self.acc)
         return self.acc

@@ -46,8 +46,9 @@ def hysteretic_part(s: Signals, c: int) -> np.ndarray:
     return out
 
 
-#: the discrepancy columns held within their training range: (parameter, column index)
-_CLAMPED = (("K1_A", 5), ("d_A", 6))
+#: the discrepancy's amplitude columns (the law of the amplitude term, columns 5 and 6 of
+#: this one), held within their training range
+_HELD = ("K1_A", "d_A")
 
 
 class Recalibration(Term):
@@ -62,16 +63,17 @@ class Recalibration(Term):
     k_s [-], a_h [-], c2, c3 [N], K1_A [N/m^2], d_A [N/m] (the last two only when A varies).
     Background and references: :mod:`cablesvc.discover.nuisance`.
 
-    The four discrepancy columns (c2, c3, K1_A, d_A) are held within the range they took on
-    the training ticks (references ``lo_<name>``, ``hi_<name>``), offline and live. They are
-    an empirical correction, fitted where the recording went; outside that support a cubic
-    or an amplitude column extrapolates without limit (measured on the realistic bench's
-    development seed 7: a held-out stretch after a long dwell, whose reversal amplitude the
-    training ticks never reached with that sign of speed, left 184 x the noise instead of
-    22 x). Held at its edge, the correction there is the one at the nearest state it was
-    fitted on, as a discrepancy with a prior reverts to it away from its data (Kennedy &
-    O'Hagan 2001). The baseline's own parameters (o, k_s, a_h) are physical and are not
-    clamped. A file written without these references runs unclamped."""
+    The two amplitude columns of the discrepancy (K1_A, d_A) are held within the range they
+    took on the training ticks (references ``lo_<name>``, ``hi_<name>``), offline and live.
+    They are an empirical correction, fitted where the recording went; outside that support
+    they extrapolated without limit (measured on the realistic bench's development seed 7: a
+    held-out stretch after a long dwell, whose reversal amplitude the training ticks never
+    reached with that sign of speed, left 184 x the noise instead of 22 x). Held at its edge,
+    the correction there is the one at the nearest state it was fitted on, as a discrepancy
+    with a prior reverts to it away from its data (Kennedy & O'Hagan 2001). The backbone
+    columns (c2, c3) are not held (holding them too added a false finding on the development
+    cases), nor are the baseline's own parameters (o, k_s, a_h), which are physical. A file
+    written without these references runs unclamped."""
 
     name = "baseline"
     label = "baseline recalibration (its own parameters and a smooth discrepancy in its own state)"
@@ -81,20 +83,19 @@ class Recalibration(Term):
     params = ("o", "k_s", "a_h", "c2", "c3", "K1_A", "d_A")
     units = ("N", "-", "-", "N", "N", "N/m^2", "N/m")
     ref_names = ("x_mean", "x_scale", "h0", "h1", "h2", "h3", "A_mean",
-                 *(f"{side}_{n}" for n, _ in _CLAMPED for side in ("lo", "hi")))
+                 *(f"{side}_{n}" for n in _HELD for side in ("lo", "hi")))
     owns_nuisance = True
 
     def refs(self, s, c, h):
         R = {**_backbone_refs(s, c), "A_mean": s.train_mean(s.amplitude[:, c]),
              "has_A": float(amplitude_varies(s, c))}
-        X = np.empty((len(self.params), s.n))
-        self._columns(cable_view(s, c), R, h, X)
-        for n, j in _CLAMPED:
-            v = X[j][s.train]
-            R[f"lo_{n}"], R[f"hi_{n}"] = float(v.min()), float(v.max())
+        amp = np.empty((len(_HELD), s.n))
+        _AMPLITUDE.columns(cable_view(s, c), R, h, amp)
+        for n, v in zip(_HELD, amp):
+            R[f"lo_{n}"], R[f"hi_{n}"] = float(v[s.train].min()), float(v[s.train].max())
         return R
 
-    def _columns(self, g, R, h, out):
+    def columns(self, g, R, h, out):
         o, ks, ah, c2 = out[:4]
         o.fill(1.0)
         np.copyto(ks, g.f0)
@@ -102,16 +103,13 @@ class Recalibration(Term):
         # the backbone curvature and the amplitude dependence are the laws of those terms
         _ASYMMETRIC.columns(g, R, h, out[3:5])           # xi^2 / s, xi^3 / s^2
         _AMPLITUDE.columns(g, R, h, out[5:7])            # (A - mean A) xi, A tanh(v / v_s)
-
-    def columns(self, g, R, h, out):
-        self._columns(g, R, h, out)
-        for n, j in _CLAMPED:                            # the discrepancy within its support
-            np.maximum(out[j], R[f"lo_{n}"], out=out[j])
-            np.minimum(out[j], R[f"hi_{n}"], out=out[j])
+        for n, col in zip(_HELD, out[5:7]):              # ... held within their support
+            np.maximum(col, R[f"lo_{n}"], out=col)
+            np.minimum(col, R[f"hi_{n}"], out=col)
 
     def live(self, table, lanes, m):
         lt = super().live(table, lanes, m)
-        for n, _ in _CLAMPED:                            # a file without the bounds: unclamped
+        for n in _HELD:                                  # a file without the bounds: unclamped
             for side, unbounded in (("lo", -np.inf), ("hi", np.inf)):
                 if f"{side}_{n}" not in table:
                     lt.R[f"{side}_{n}"].fill(unbounded)
