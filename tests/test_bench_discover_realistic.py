@@ -146,3 +146,8 @@ def test_ideal_mode_keeps_its_keys():
               "control_total", "median_rmse_reduction", "confusion", "per_case", "seconds"):
         assert k in res
     assert res["mode"] == "ideal" and res["cases"] == 3 and res["ool_total"] == 0
+    assert res["single_total"] == 1 and res["pair_total"] == 1
+    # every drawn effect is at least twice the noise on its weakest cable
+    for c in res["per_case"]:
+        assert all(v >= 0.2 - 1e-9 for v in c["effect_rms"].values())
+    assert res["control_false"] == 0

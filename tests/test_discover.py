@@ -189,19 +189,6 @@ def test_cli_report_json_and_params(tmp_path):
     assert main(["discover", "--robot", ROBOT, str(tmp_path / "missing.mcap")]) == 1
 
 
-def test_bench_small_run():
-    from cablesvc.bench.discover import run_bench
-    res = run_bench(cases=1, seed=3)
-    for k in ("cases", "single_correct", "single_total", "pair_correct", "pair_total", "control_false",
-              "control_total", "median_rmse_reduction"):
-        assert k in res
-    assert res["cases"] == 3 and res["single_total"] == 1 and res["pair_total"] == 1
-    # every drawn effect is at least twice the noise on its weakest cable
-    for c in res["per_case"]:
-        assert all(v >= 0.2 - 1e-9 for v in c["effect_rms"].values())
-    assert res["control_false"] == 0
-
-
 # ---- the Bouc-Wen benchmark oscillator ------------------------------------------------
 
 def _boucwen_dir():

@@ -189,7 +189,10 @@ def test_can_source_counts_a_clock_step_as_an_event_and_keeps_every_tick(robot):
     ch = _channel()
     layout = load_can_layout(DBCS[0], robot.n_cables)
     rec = simulate_recording(robot, "trajectory", None, duration=0.2, rate=500.0, seed=7)
-    src = open_source(robot, {"kind": "can", "interface": "virtual", "channel": ch})
+    # the sender below is a Python loop sharing the GIL (5 ms switch interval) with the
+    # source's reader thread: on a loaded machine it can stall longer than the default 5 ms
+    # deadline between two frames of one tick, which is not what this test is about
+    src = open_source(robot, {"kind": "can", "interface": "virtual", "channel": ch, "deadline_s": 0.1})
     tx = can.Bus(interface="virtual", channel=ch, preserve_timestamps=True)
     got = []
     with src:

@@ -23,6 +23,12 @@ from cablesvc.config.params import ModelParams
 log = logging.getLogger("cablesvc.daemon")
 
 SNAPSHOT_FORMAT = 2            # 2: the meta names the source and holds the last elongation
+#: the first tick after a restart may move each cable's elongation by up to this many times
+#: the largest one-tick move the snapshot's session saw: a snapshot taken while the motion was
+#: still speeding up (2.5 s into a sine) saw a largest step a little below the next tick's
+#: (0.0016 mm against 0.0016 mm + 1e-7, and the restart fell back to rest); a jump of a few
+#: ticks of motion nobody saw is still refused
+RESTORE_STEP_FACTOR = 2.0
 
 
 def default_snapshot_path(robot: str) -> Path:
@@ -142,8 +148,9 @@ class SnapshotState:
         with this tick's input, else start from rest (logged, ``snapshot.error`` says why).
 
         The tick is run once from rest to get its elongation. The snapshot is consistent when
-        every cable's elongation moved by at most what one tick could (the largest one-tick
-        move of the snapshot's session, at least the reversal dead band) and, for a replay,
+        every cable's elongation moved by at most what one tick could (:data:`RESTORE_STEP_FACTOR`
+        times the largest one-tick move of the snapshot's session, at least the reversal dead
+        band: the motion may still have been speeding up when the snapshot was taken) and, for a replay,
         when the recording continues after the snapshot's time (a replay from its start is
         not the state at its end). Then the state is loaded with its time re-anchored: this
         tick comes one tick (the snapshot session's last time step) after the snapshot,
@@ -171,7 +178,8 @@ class SnapshotState:
             why = "it holds no elongation to compare with"
         else:
             step = np.asarray(meta.get("step_max") or np.zeros_like(x1), dtype=float)
-            tol = np.maximum(self._restore_tolerance(), step if step.shape == x1.shape else 0.0)
+            tol = np.maximum(self._restore_tolerance(),
+                             RESTORE_STEP_FACTOR * step if step.shape == x1.shape else 0.0)
             jump = np.abs(x1 - x_snap)
             bad = np.flatnonzero(~(jump <= tol))
             if bad.size:
