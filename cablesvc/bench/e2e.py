@@ -42,6 +42,8 @@ from typing import Any, Callable
 
 from hdrh.histogram import HdrHistogram
 
+from cablesvc.service.latency import value_at_percentiles
+
 #: the daemon's CAN tick deadline in the benchmarks [s] (see run_three_processes)
 BENCH_DEADLINE_S = 0.25
 
@@ -54,8 +56,8 @@ def latency_percentiles(lat_ns: list[int]) -> dict[str, float]:
         h.record_value(max(1, min(v // 1000, 60_000_000)))
     if not lat_ns:
         return {"p50_us": float("nan"), "p99_us": float("nan"), "p999_us": float("nan"), "max_us": float("nan")}
-    return {"p50_us": float(h.get_value_at_percentile(50)), "p99_us": float(h.get_value_at_percentile(99)),
-            "p999_us": float(h.get_value_at_percentile(99.9)), "max_us": float(max(lat_ns) / 1000)}
+    p50, p99, p999 = value_at_percentiles(h, (50, 99, 99.9))
+    return {"p50_us": float(p50), "p99_us": float(p99), "p999_us": float(p999), "max_us": float(max(lat_ns) / 1000)}
 
 
 def _toml_value(v: Any) -> str:

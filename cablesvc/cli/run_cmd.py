@@ -17,10 +17,10 @@ from cablesvc.cli.run_session import (
     StartupInterrupted,
     hup_during_startup,
     interrupt_startup,
+    print_last_frame,
     reload_on_sighup,
     view,
-    wait_until_stopped,
-)
+    wait_until_stopped)
 from cablesvc.errors import ConfigError
 
 DESCRIPTION = """\
@@ -247,11 +247,12 @@ def _cmd_run(args) -> int:
         controller.start()
     worker.start()
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
+    last_frame: list = []
     try:
         if args.no_view:
             wait_until_stopped(worker.is_alive, stop, deadline)
         else:
-            view([(daemon, robot, daemon.geom)], stop, worker.is_alive, deadline)
+            view([(daemon, robot, daemon.geom)], stop, worker.is_alive, deadline, last_frame)
     finally:
         stop.set()
         t0 = time.monotonic()
@@ -259,6 +260,7 @@ def _cmd_run(args) -> int:
             controller.stop()
         worker.join(1.0)
         daemon.close()
+        print_last_frame(last_frame)
         st = daemon.status()
         log.info("stopped in %.2f s after %d ticks; input %s; latency %s", time.monotonic() - t0, st["ticks"],
                  json.dumps(st["input"]), json.dumps(st["latency_us"]))

@@ -19,7 +19,8 @@ import time
 from typing import Any
 
 from cablesvc.cli.failures import zenoh_failure
-from cablesvc.cli.run_session import StartupInterrupted, reload_on_sighup, view, wait_until_stopped
+from cablesvc.cli.run_session import (StartupInterrupted, print_last_frame, reload_on_sighup, view,
+                                       wait_until_stopped)
 from cablesvc.errors import ConfigError, ServiceError
 
 __all__ = ["per_robot_flags", "run_fleet", "run_overrides"]
@@ -100,6 +101,7 @@ def run_fleet(args, cfg: dict[str, Any], file: str) -> int:
                  else "")
     controllers = [p.controller for p in plans if p.controller is not None]
     deadline = None if args.seconds is None else time.monotonic() + args.seconds
+    last_frame: list = []
     try:
         for c in controllers:
             c.start()
@@ -108,7 +110,7 @@ def run_fleet(args, cfg: dict[str, Any], file: str) -> int:
             wait_until_stopped(lambda: bool(fleet.running()), stop, deadline)
         else:
             view([(fleet.daemons[n], fleet.daemons[n].robot, fleet.daemons[n].geom) for n in fleet.names], stop,
-                  lambda: bool(fleet.running()), deadline)
+                  lambda: bool(fleet.running()), deadline, last_frame)
     finally:
         stop.set()
         t0 = time.monotonic()
@@ -116,6 +118,7 @@ def run_fleet(args, cfg: dict[str, Any], file: str) -> int:
             c.stop()
         fleet.close()
         elapsed = time.monotonic() - t0
+        print_last_frame(last_frame)
         statuses = fleet.status()
         for name, st in statuses.items():
             log.info("robot %s stopped in %.2f s after %d ticks; input %s; latency %s", name, elapsed, st["ticks"],

@@ -60,6 +60,7 @@ from cablesvc.config.params import ModelParams
 from cablesvc.config.robot import Robot
 from cablesvc.errors import ServiceError
 from cablesvc.kernel import Predictor
+from cablesvc.service.latency import value_at_percentiles
 from cablesvc.service.messages import forces_payload
 from cablesvc.service.params_reload import ParamsReload
 from cablesvc.service.recorder import RECORD_SUFFIXES, REPLAY_RECORD_QUEUE, Recorder
@@ -289,8 +290,8 @@ class Daemon(ParamsReload, SnapshotState):
         n = h.get_total_count()
         lat = {"count": n}
         if n:
-            lat.update(p50_us=h.get_value_at_percentile(50), p99_us=h.get_value_at_percentile(99),
-                       p999_us=h.get_value_at_percentile(99.9), max_us=h.get_max_value())
+            p50, p99, p999 = value_at_percentiles(h, (50, 99, 99.9))
+            lat.update(p50_us=p50, p99_us=p99, p999_us=p999, max_us=h.get_max_value())
         s = self.stats
         # the loop (or the source's receive thread) changes these while a Zenoh thread runs
         # this: read each once, so that a None set in between cannot fail the query
