@@ -237,11 +237,15 @@ class ParamsReload:
         t = s.last_t if s.last_t is not None else 0.0
         changed = change.fingerprint != self.fingerprint
         old_desc = f"{self.params.model} {self.fingerprint}"
-        self.predictor = new
-        self.params = change.params
+        # counted and described before the switch: status() reads without the loop's lock, and
+        # a status that shows the new model must count it accepted and name its source (one in
+        # CI did not: model "linear", accepted 0, when the count came after the alarms' events)
+        self.reload_counts["accepted"] += 1
         self.fingerprint = change.fingerprint
         self.params_origin = change.origin
         self.params_since = {"wall_time": time.time(), "seq": s.last_seq, "t": s.last_t, "origin": change.origin}
+        self.predictor = new
+        self.params = change.params                  # last: status() names the model from it
         events = self.alarms.set_params(change.params, t, s.last_seq)
         if changed:        # another model: the residual's baseline is another one too
             events += self.alarms.reset_drift()
@@ -256,7 +260,6 @@ class ParamsReload:
             self.snapshot_error = "not restored: the parameters changed before the first tick"
         if self.snapshot_path is not None:
             self._last_snapshot = -math.inf          # the next loop pass writes one for the new parameters
-        self.reload_counts["accepted"] += 1
         result = {"accepted": True, "applied": True, "origin": change.origin, "model": change.params.model,
                   "fingerprint": change.fingerprint, "previous": old_desc, "state": state,
                   "seq": s.last_seq, "t": s.last_t, "wall_time": time.time()}
