@@ -20,7 +20,8 @@ from cablesvc.cli.run_session import (
     print_last_frame,
     reload_on_sighup,
     view,
-    wait_until_stopped)
+    wait_until_stopped,
+)
 from cablesvc.errors import ConfigError
 
 DESCRIPTION = """\

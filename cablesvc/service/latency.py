@@ -25,14 +25,13 @@ def value_at_percentiles(h, percentiles: Sequence[float]) -> list[int]:
     counts = np.ctypeslib.as_array(h.counts)[: h.counts_len]
     cum = np.cumsum(counts)        # a snapshot: the tick loop may record meanwhile
     total = int(cum[-1]) if cum.size else 0
+    if total == 0:
+        return [0] * len(percentiles)
     out = []
     for p in percentiles:
-        # hdrh's get_target_count_at_percentile, on the snapshot's total
+        # hdrh's get_target_count_at_percentile on the snapshot's total: 1 <= target <= total,
+        # so the first counter whose running sum reaches it exists
         target = max(int(min(float(p), 100.0) * total / 100 + 0.5), 1)
-        k = int(np.searchsorted(cum, target, side="left"))
-        if total == 0 or k >= cum.size:
-            out.append(0)
-            continue
-        v = h.get_value_from_index(k)
+        v = h.get_value_from_index(int(np.searchsorted(cum, target, side="left")))
         out.append(int(h.get_highest_equivalent_value(v) if p else h.get_lowest_equivalent_value(v)))
     return out

@@ -25,9 +25,9 @@ log = logging.getLogger("cablesvc.daemon")
 SNAPSHOT_FORMAT = 2            # 2: the meta names the source and holds the last elongation
 #: the first tick after a restart may move each cable's elongation by up to this many times
 #: the largest one-tick move the snapshot's session saw: a snapshot taken while the motion was
-#: still speeding up (2.5 s into a sine) saw a largest step a little below the next tick's
-#: (0.0016 mm against 0.0016 mm + 1e-7, and the restart fell back to rest); a jump of a few
-#: ticks of motion nobody saw is still refused
+#: still speeding up (2.5 s into a sine) saw a largest step just below the next tick's (both
+#: 0.0016 mm to four decimals, and the restart fell back to rest); a jump of a few ticks of
+#: motion nobody saw is still refused
 RESTORE_STEP_FACTOR = 2.0
 
 
