@@ -66,6 +66,32 @@ def test_true_forces_balance_and_a_sensor_offset_breaks_the_balance(robot, contr
     assert np.min(np.sqrt(np.mean(_perfect_residual(cr)[:, cs] ** 2, axis=0))) > 2.5 * NOISE
 
 
+def test_a_lagging_force_channel_is_named_from_the_balance_not_from_the_cable_law(robot, control):
+    """Dead time between the length and force channels: the platform balances the present
+    force, the sensor shows the one of tau ago. Discovery names it on the lagging cables
+    from the measured forces' equilibrium (002 eq 2) with the lag's size, whatever the
+    identified baseline's error, and the control (same robot) gets no lag."""
+    from cablesvc.discover import discover
+    from cablesvc.discover.equilibrium import equilibrium_check
+    case = make_realistic_case("single", ["deadtime"], 23, robot=robot, rng=np.random.default_rng(5))
+    truth = case.truth["effects"][0]
+    d = discover(case.recording, robot.robot, case.baseline)
+    eq = d.equilibrium
+    assert eq["ratio_raw"] > 2.0 and eq["holds"], eq                # broken, then restored
+    assert sorted(eq["delay"]) == sorted(truth["cables"]) and eq["sensor"] == {}
+    for c in truth["cables"]:
+        assert eq["delay"][c]["tau_s"] == pytest.approx(truth["magnitude"], rel=0.2, abs=0.01)
+    f = {x.term: x for x in d.findings}
+    assert set(f) == {"deadtime"} and sorted(f["deadtime"].cables) == sorted(truth["cables"])
+    assert f["deadtime"].p_value < 0.01
+    assert "balance" in f["deadtime"].sentence()
+    assert d.reduction(truth["cables"]) > 0.5
+    rec = control.recording
+    ctrl = equilibrium_check(robot.robot.geometry(), rec.t, rec.position, rec.orientation, rec.force,
+                             np.full(rec.force.shape[1], NOISE), block=1.25)
+    assert ctrl["holds"] and ctrl["delay"] == {} and ctrl["sensor"] == {}
+
+
 def test_prescribed_pose_does_not_balance(robot, control):
     """What the twin does (the pose held where commanded) leaves the truth unbalanced: the
     equilibrium correction is what makes the forces balance."""

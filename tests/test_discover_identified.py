@@ -97,9 +97,10 @@ def test_holm_adjusts_for_all_tries():
     assert adj["b"] == pytest.approx(0.18)
 
 
-def _balanced(seed=0, n=2000):
+def _balanced(seed=0, n=2000, swing=0.0):
     """Poses near home and cable forces that balance the platform's weight exactly
-    (002 eq 2), with a common pretension in the null space of A^T."""
+    (002 eq 2), with a common pretension in the null space of A^T (``swing`` [N]: a
+    0.4 Hz swing of that pretension, the internal force changing faster than the pose)."""
     rob = load_robot(ROBOT)
     g = rob.geometry()
     rng = np.random.default_rng(seed)
@@ -114,7 +115,7 @@ def _balanced(seed=0, n=2000):
     for i in range(n):
         pinv = np.linalg.pinv(AT[i])
         null = np.eye(g.n_cables) - pinv @ AT[i]
-        f[i] = -pinv @ w[i] + null @ np.full(g.n_cables, 150.0)
+        f[i] = -pinv @ w[i] + null @ np.full(g.n_cables, 150.0 + swing * np.sin(2 * np.pi * 0.4 * t[i]))
     assert np.all(f > 10.0)
     return g, t, P, Q, f, rng
 
@@ -124,12 +125,32 @@ def test_equilibrium_tells_a_sensor_offset_from_a_balanced_recording():
     y = f + 0.1 * rng.standard_normal(f.shape)
     noise = np.full(g.n_cables, 0.1)
     ok = equilibrium_check(g, t, P, Q, y, noise)
-    assert ok["holds"] and ok["sensor"] == {} and ok["ratio"] < 1.3
+    assert ok["holds"] and ok["sensor"] == {} and ok["delay"] == {} and ok["ratio"] < 1.3
     y2 = y.copy()
     y2[:, 2] += 0.5                      # sensor offset on cable 2 only
     bad = equilibrium_check(g, t, P, Q, y2, noise)
     assert list(bad["sensor"]) == [2]
     assert bad["sensor"][2]["mean_N"] == pytest.approx(0.5, abs=0.1) and bad["holds"]
+
+
+def test_equilibrium_finds_a_force_channel_that_lags_and_how_much():
+    """A reading that lags the present force by tau (the platform balances the force, the
+    sensor shows the one of tau ago) breaks the balance along that cable's column; putting
+    the lag back restores it. Neither a sensor offset nor another cable takes its place."""
+    g, t, P, Q, f, rng = _balanced(swing=5.0)
+    noise = np.full(g.n_cables, 0.1)
+    y = f + 0.1 * rng.standard_normal(f.shape)
+    ok = equilibrium_check(g, t, P, Q, y, noise, block=1.25)
+    assert ok["holds"] and ok["delay"] == {} and ok["sensor"] == {}
+    tau = 0.12
+    y[:, 5] = np.interp(t - tau, t, f[:, 5]) + 0.1 * rng.standard_normal(t.size)
+    res = equilibrium_check(g, t, P, Q, y, noise, block=1.25)
+    assert res["ratio_raw"] > 2.0                    # the lag breaks the balance ...
+    assert list(res["delay"]) == [5] and res["sensor"] == {}
+    assert res["holds"] and res["ratio"] < 1.3       # ... and the lag put back restores it
+    d = res["delay"][5]
+    assert d["p"] < 0.01
+    assert d["tau_s"] == pytest.approx(tau, abs=0.01)
 
 
 def test_equilibrium_reports_when_the_forces_do_not_balance():

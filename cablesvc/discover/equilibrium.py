@@ -18,13 +18,21 @@ along cable i's column of A^T. :func:`equilibrium_check` therefore
    S = A^T diag(sigma^2) A (sigma the per-cable noise floor), so a balanced recording has
    a mean whitened square of 1 per wrench row;
 2. fits the free scales of the gravity and inertial wrenches (an unknown payload, an
-   approximate mass), then adds, cable by cable, the sensor columns A_i^T and A_i^T y_i
-   while a leave-one-block-out test on per-block gains (the block is the unit; Holm over
-   the cables) says they explain the wrench residual;
-3. says whether equilibrium holds on the recording at all: when the whitened residual
+   approximate mass);
+3. offers, for every cable, two explanations of a residual along its column: the sensor
+   columns A_i^T and A_i^T y_i (offset and gain), or a dead time of its force channel. A
+   reading that lags the present force by tau, y_i(t) = f_i(t - tau), leaves
+   W = A_i^T (y_i(t) - y_i(t + tau)); putting the lag back (the reading tau later, smoothed,
+   stands for the present force) has no free coefficient, tau is searched per cable. The
+   explanation that explains most is added while a leave-one-block-out test on per-block
+   gains (the block is the unit; Holm over every (cable, explanation) pair) says it
+   explains the wrench residual. A lag is evidence in the dead time's own variable that no
+   error of the cable model can produce: a cable law, however wrong, changes no measured
+   force, and the platform balances the forces it reads;
+4. says whether equilibrium holds on the recording at all: when the whitened residual
    left is still well above 1, the measured forces do not balance for reasons no sensor
-   column explains (dynamics, geometry, a dead time between pose and force), and a sensor
-   error cannot be told from a cable's pretension or stiffness.
+   column explains (dynamics, geometry), and a sensor error cannot be told from a cable's
+   pretension or stiffness.
 """
 
 from __future__ import annotations
@@ -33,8 +41,9 @@ import math
 from typing import Any
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
-from cablesvc.discover.evidence import holm, t_test
+from cablesvc.discover.evidence import holm, signed_rank_test, t_test
 from cablesvc.kinematics import PLANAR_WRENCH_ROWS, inverse_kinematics, platform_wrench, structure_matrix
 
 __all__ = ["equilibrium_check"]
@@ -43,6 +52,9 @@ __all__ = ["equilibrium_check"]
 HOLDS = 1.5
 #: corrected p-value under which a cable's sensor columns count
 ALPHA = 0.01
+#: ... and the least they must explain: mean held-out gain per wrench row, in whitened
+#: noise variances (a consistent but negligible gain, a few mN, is not a sensor error)
+MIN_GAIN = 0.1
 
 
 def _whiten(AT: np.ndarray, sigma: np.ndarray) -> np.ndarray:
@@ -59,23 +71,55 @@ def _blocks(t: np.ndarray, block: float) -> list[np.ndarray]:
     return [np.flatnonzero(k == b) for b in np.unique(k) if np.sum(k == b) >= 10]
 
 
+#: window of the local quadratic fit that smooths the measured force before it is shifted [s]
+SMOOTH_S = 0.15
+#: the lags tried for a force channel [s] (wider than the dead-time term's 0-0.5 s: a lag
+#: the term cannot follow is still reported, with its size)
+DELAYS_S = (0.01, 0.02, 0.03, 0.05, 0.07, 0.1, 0.14, 0.2, 0.28, 0.4, 0.56, 0.8, 1.1)
+
+
+def smoothed_force(t: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The measured forces (N, m) [N] smoothed by a local quadratic fit over
+    :data:`SMOOTH_S` (Savitzky-Golay), which keeps their shape and takes off most of the
+    sensor noise."""
+    from scipy.signal import savgol_filter
+    n = y.shape[0]
+    dt = float(np.median(np.diff(t))) if n > 1 else 1.0
+    w = int(round(SMOOTH_S / max(dt, 1e-9))) | 1
+    return savgol_filter(y, w, 2, axis=0) if 5 <= w < n else np.array(y, float)
+
+
+def _solve(G: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Least-squares coefficients from the normal equations G beta = h (p, p), (p,), with
+    the columns scaled to unit norm first (the weight, inertia and sensor columns differ
+    by orders of magnitude)."""
+    sc = np.sqrt(np.clip(np.diag(G), 0.0, None))
+    sc[sc == 0] = 1.0
+    beta, *_ = np.linalg.lstsq(G / np.outer(sc, sc), h / sc, rcond=None)
+    return beta / sc
+
+
+def _sse(Xw: np.ndarray, Ww: np.ndarray) -> float:
+    """Sum of squares left by the least-squares fit of the columns Xw (N, r, p) to Ww (N, r)."""
+    beta = _solve(np.einsum("nrp,nrq->pq", Xw, Xw), np.einsum("nrp,nr->p", Xw, Ww))
+    e = Ww - Xw @ beta
+    return float(np.sum(e * e))
+
+
 def _loo(Xw: np.ndarray, Ww: np.ndarray, blocks: list[np.ndarray]) -> list[np.ndarray]:
-    """Held-out whitened squared residual per tick, per block (N ticks x r rows stacked)."""
+    """Held-out whitened squared residual per tick, per block (N ticks x r rows stacked):
+    the columns fitted on every tick outside the block (normal equations, the block's own
+    share subtracted from the total)."""
     N, r, p = Xw.shape
+    if not p:
+        return [np.sum(Ww[b] * Ww[b], axis=1) for b in blocks]
+    G = np.einsum("nrp,nrq->npq", Xw, Xw)
+    h = np.einsum("nrp,nr->np", Xw, Ww)
+    Gt, ht = G.sum(axis=0), h.sum(axis=0)
     out = []
-    allm = np.ones(N, bool)
     for b in blocks:
-        m = allm.copy()
-        m[b] = False
-        if p:
-            X = Xw[m].reshape(-1, p)
-            sc = np.sqrt(np.sum(X * X, axis=0))
-            sc[sc == 0] = 1.0
-            beta, *_ = np.linalg.lstsq(X / sc, Ww[m].reshape(-1), rcond=None)
-            pred = np.einsum("nrp,p->nr", Xw[b], beta / sc)
-        else:
-            pred = 0.0
-        e = Ww[b] - pred
+        beta = _solve(Gt - G[b].sum(axis=0), ht - h[b].sum(axis=0))
+        e = Ww[b] - Xw[b] @ beta
         out.append(np.sum(e * e, axis=1))
     return out
 
@@ -86,7 +130,9 @@ def equilibrium_check(geom: Any, t: np.ndarray, position: np.ndarray, orientatio
     module docstring). ``noise`` (m,) [N] sensor-noise std per cable. Returns a JSON-able
     dict: ``ratio_raw`` / ``ratio`` whitened mean square per row before / after the fitted
     wrench and sensor columns, ``holds``, ``sensor`` {cable: {"o" [N], "g" [-], "p"}}
-    (cables whose sensor columns explain the residual, Holm-corrected p), ``tried``."""
+    (cables whose sensor columns explain the residual, Holm-corrected p), ``delay``
+    {cable: {"tau_s" [s], "p"}} (cables whose force channel lags), ``tried`` (the number of
+    (cable, explanation) pairs the Holm correction counts)."""
     ik = inverse_kinematics(geom, np.asarray(position, float), np.asarray(orientation, float))
     AT = structure_matrix(ik.unit, ik.anchor_world)
     wg = platform_wrench(geom, ik.rotation)
@@ -105,43 +151,96 @@ def equilibrium_check(geom: Any, t: np.ndarray, position: np.ndarray, orientatio
         return np.einsum("nij,nj->ni", Li, col)[:, :, None]
 
     base = [wcol(wg), wcol(inert)]
+    ys = smoothed_force(t, y)
+
+    LA = np.einsum("nij,njm->nim", Li, AT)         # whitened columns of A^T (N, r, m)
+
+    def ahead(i: int, tau: float) -> np.ndarray:
+        # what putting back a lag of tau on cable i adds to the wrench residual (whitened):
+        # its reading tau later stands for the present force, A_i^T (y_i(t + tau) - y_i(t))
+        later = np.interp(t + tau, t, ys[:, i], right=ys[-1, i])
+        return LA[:, :, i] * (later - ys[:, i])[:, None]
+
+    # per cable, two explanations of a wrench residual along its column: a sensor offset
+    # and gain (two linear columns), or a lag of its force channel (no free coefficient: the
+    # lag tau is its one parameter, searched on all ticks)
     sensor = {i: [wcol(AT[:, :, i]), wcol(AT[:, :, i] * y[:, i:i + 1])] for i in range(m)}
+    cands = [(i, kind) for i in range(m) for kind in ("sensor", "delay")]
     blocks = _blocks(t, block)
     ratio_raw = float(np.mean(np.sum(Ww * Ww, axis=1)) / r)
-    chosen: list[int] = []
-    ps: dict[int, float] = {}
-    cur = _loo(np.concatenate(base, axis=2), Ww, blocks)
-    for _ in range(m):
+    tries = len(cands)
+
+    def design(keys: list[tuple[int, str]], taus: dict[int, float]) -> tuple[np.ndarray, np.ndarray]:
+        X = np.concatenate(base + [c for i, kind in keys if kind == "sensor" for c in sensor[i]], axis=2)
+        target = Ww.copy()
+        for i, kind in keys:
+            if kind == "delay":
+                target += ahead(i, taus[i])
+        return X, target
+
+    def fit_lag(i: int, keys: list[tuple[int, str]], taus: dict[int, float]) -> float:
+        # the lag of cable i that balances best beside ``keys``: grid, then a bounded search
+        # between the grid's neighbours of the best point
+        def sse(tau: float) -> float:
+            X, target = design(keys + [(i, "delay")], {**taus, i: tau})
+            return _sse(X, target)
+        scores = [sse(tau) for tau in DELAYS_S]
+        k = int(np.argmin(scores))
+        lo, hi = DELAYS_S[max(k - 1, 0)], DELAYS_S[min(k + 1, len(DELAYS_S) - 1)]
+        res = minimize_scalar(sse, bounds=(lo if k > 0 else 0.0, hi), method="bounded",
+                              options={"xatol": 1e-4})
+        return float(res.x) if res.fun < scores[k] else DELAYS_S[k]
+
+    def loo_of(keys: list[tuple[int, str]], taus: dict[int, float]) -> list[np.ndarray]:
+        return _loo(*design(keys, taus), blocks)
+
+    def gains(e0: list[np.ndarray], e1: list[np.ndarray]) -> np.ndarray:
+        return np.array([float(np.mean(a - b)) / r for a, b in zip(e0, e1)])
+
+    # forward: the candidate that explains most (mean held-out gain) is added while it passes
+    # Holm's correction over every (cable, explanation) pair. A lag's gain is large in fast
+    # blocks and small in slow ones, hence the signed-rank test for it; a sensor error's is even.
+    chosen: list[tuple[int, str]] = []
+    taus: dict[int, float] = {}
+    ps: dict[tuple[int, str], float] = {}
+    cur = loo_of(chosen, taus)
+    for _ in range(tries):
         best = None
-        for i in range(m):
-            if i in chosen:
+        for key in cands:
+            if key in chosen or (key[1] == "delay" and key[0] in taus):
                 continue
-            X = np.concatenate(base + [c for j in chosen + [i] for c in sensor[j]], axis=2)
-            e1 = _loo(X, Ww, blocks)
-            g = np.array([float(np.mean(a - b)) / r for a, b in zip(cur, e1)])
-            tt, p = t_test(g)
-            if best is None or p < best[1] or (p == best[1] and tt > best[2]):
-                best = (i, p, tt, e1)
+            tk = {**taus, key[0]: fit_lag(key[0], chosen, taus)} if key[1] == "delay" else taus
+            e1 = loo_of(chosen + [key], tk)
+            g = gains(cur, e1)
+            gain = float(np.mean(g))
+            if gain >= MIN_GAIN and (best is None or gain > best[1]):
+                best = (key, gain, g, e1, tk)
         if best is None:
             break
-        i, p, _, e1 = best
-        adj = holm({**ps, i: p}, m)[i]
-        if adj >= ALPHA:
+        key, _, g, e1, tk = best
+        p = (signed_rank_test if key[1] == "delay" else t_test)(g)[1]
+        adj1 = holm({**ps, key: p}, tries)[key]
+        if adj1 >= ALPHA:
             break
-        chosen.append(i)
-        ps[i] = adj
+        chosen.append(key)
+        taus = tk
+        ps[key] = adj1
         cur = e1
     ratio = float(np.mean(np.concatenate(cur)) / r)
-    # the sensor errors' size, fitted on all ticks with the chosen columns
+    # the sensor errors' sizes, fitted on all ticks with the chosen columns
     out_sensor: dict[int, dict[str, float]] = {}
-    if chosen:
-        X = np.concatenate(base + [c for j in chosen for c in sensor[j]], axis=2)
-        beta, *_ = np.linalg.lstsq(X.reshape(-1, X.shape[2]), Ww.reshape(-1), rcond=None)
-        for k, i in enumerate(chosen):
-            o, g = float(beta[2 + 2 * k]), float(beta[3 + 2 * k])
-            err = o + g * y[:, i]              # o and g trade off when the tension varies little
-            out_sensor[i] = {"o": o, "g": g, "p": ps[i], "mean_N": float(np.mean(err)),
-                             "rms_N": float(np.sqrt(np.mean(err ** 2)))}
+    out_delay = {i: {"tau_s": taus[i], "p": ps[(i, kind)]} for i, kind in chosen if kind == "delay"}
+    if any(kind == "sensor" for _, kind in chosen):
+        X, target = design(chosen, taus)
+        beta, *_ = np.linalg.lstsq(X.reshape(-1, X.shape[2]), target.reshape(-1), rcond=None)
+        j = 2
+        for i, kind in chosen:
+            if kind == "sensor":
+                o, g = float(beta[j]), float(beta[j + 1])
+                err = o + g * y[:, i]          # o and g trade off when the tension varies little
+                out_sensor[i] = {"o": o, "g": g, "p": ps[(i, kind)], "mean_N": float(np.mean(err)),
+                                 "rms_N": float(np.sqrt(np.mean(err ** 2)))}
+                j += 2
     return {"ratio_raw": ratio_raw, "ratio": ratio, "holds": bool(ratio <= HOLDS), "threshold": HOLDS,
-            "sensor": out_sensor, "tried": m, "blocks": len(blocks),
+            "sensor": out_sensor, "delay": out_delay, "tried": tries, "blocks": len(blocks),
             "dynamic": math.sqrt(float(np.mean(np.sum(inert * inert, axis=1))))}

@@ -148,6 +148,9 @@ class Finding:
     #: per cable, the share of the held-out residual variance (what the recalibrated
     #: baseline leaves) the term explains (:mod:`cablesvc.discover.screen`); empty in exact mode
     share: dict[int, float] = field(default_factory=dict)
+    #: evidence from outside the force model, in words (the measured forces' balance for a
+    #: lagging force channel); empty when the term was named on the block screen alone
+    evidence: str = ""
 
     @property
     def p_value(self) -> Optional[float]:
@@ -162,6 +165,8 @@ class Finding:
             ev += f", block-level p = {self.p_value:.2g}"
         if self.share:
             ev += f", explains {100.0 * min(self.share.values()):.0f} % of the held-out residual"
+        if self.evidence:
+            ev += f"; {self.evidence}"
         return (f"{self.label}: the residual follows {self.variable} on cable{'s' if len(self.cables) > 1 else ''} "
                 f"{cs} ({ev}, model: {self.equation})")
 
@@ -257,7 +262,7 @@ class Discovery:
         if eq:
             lines.append(f"equilibrium of the measured forces (002 eq 2): wrench residual per row, in sensor-noise "
                          f"variances, {eq['ratio_raw']:.2f} as measured and {eq['ratio']:.2f} on held-out blocks "
-                         f"after fitting the weight, inertia and sensor columns ("
+                         f"after fitting the weight, inertia, sensor and lag columns ("
                          + ("holds" if eq["holds"] else "does not hold") + f": <= {eq['threshold']:g} holds)")
         for u in self.unexplained:
             lines.append(f"unexplained residual remains on cables {', '.join(map(str, u['cables']))}: "
@@ -320,7 +325,7 @@ class Discovery:
                           "raw_r": {str(k): v for k, v in f.raw_r.items()},
                           "params": {str(k): v for k, v in f.params.items()}, "sentence": f.sentence(),
                           "p": {str(k): v for k, v in f.p.items()}, "p_value": f.p_value,
-                          "share": {str(k): v for k, v in f.share.items()}}
+                          "share": {str(k): v for k, v in f.share.items()}, "evidence": f.evidence}
                          for f in self.findings],
             "verdict": self.verdict(),
             "recalibration": self.recalibration,
@@ -506,8 +511,20 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     # exact-baseline mode, where every residual is physics
     screen = selector if isinstance(selector, BlockScreen) else BlockScreen(alpha=ALPHA, share_min=SHARE_MIN)
     cache = DesignCache()
+    # the measured forces' equilibrium (002 eq 2) comes first: it needs no cable model. A
+    # force channel that lags breaks the balance, and no error of the cable law can; where
+    # the recording balances once the lag is put back, the dead time is named on that
+    # evidence (its share of a residual the recalibration can partly mimic does not matter)
+    eq = equilibrium_check(rob.geometry(), s.t, rec.position, rec.orientation, s.y, noise, block=block / 2.0)
+    outside: dict[tuple[str, int], dict[str, Any]] = {}
+    lag = next((u for u in cands if u.delays_input), None)
+    if eq["holds"] and lag is not None:
+        for c, d in eq.get("delay", {}).items():
+            if lag.applies(s, int(c)):
+                outside[(lag.name, int(c))] = {"source": "equilibrium", **d}
     # test units: half a split block
-    sel = screen.select(s, r, cands, train, valid, noise=noise, base=[nuis], cache=cache, block=block / 2.0)
+    sel = screen.select(s, r, cands, train, valid, noise=noise, base=[nuis], cache=cache, block=block / 2.0,
+                        evidence=outside)
     fitmask = train | valid
     blocks = sel.blocks
     hyp = {c: dict(sel.fits[c].hyper) for c in range(m)}
@@ -532,8 +549,15 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
         for u in kept[c][1:]:
             named.setdefault(u.name, []).append(c)
     findings = [_finding(next(u for u in cands if u.name == n), cs, s, r, final, full, test,
-                         {c: adj[(n, c)] for c in cs},
+                         {c: outside[(n, c)]["p"] if (n, c) in outside else adj[(n, c)] for c in cs},
                          {c: sel.joint.get((n, c), tests[(n, c)])["share"] for c in cs}) for n, cs in named.items()]
+    for f in findings:
+        lagging = [c for c in f.cables if (f.term, c) in outside]
+        if lagging:
+            f.evidence = ("the measured forces balance the platform only with the reading of cable"
+                          f"{'s' if len(lagging) > 1 else ''} {', '.join(map(str, lagging))} taken "
+                          + ", ".join(f"{outside[(f.term, c)]['tau_s']:.3g}" for c in lagging)
+                          + " s later (its force channel lags; 002 eq 2)")
 
     # the baseline's own finding: does its recalibration earn its place on held-out blocks?
     # held-out errors of the whole model per cable (also what the unexplained test below reads)
@@ -554,8 +578,7 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                              "rms_N": float(np.sqrt(np.mean((corr - 0.0) ** 2))), "words": describe_recalibration(prm)}
     rc_cables = [c for c in range(m) if rc_adj[c] < ALPHA]
 
-    # sensor or cable: the measured forces' equilibrium (002 eq 2)
-    eq = equilibrium_check(rob.geometry(), s.t, rec.position, rec.orientation, s.y, noise, block=block)
+    # sensor or cable: the measured forces' equilibrium (002 eq 2), checked above
     ambiguous: list[int] = []
     if eq["holds"] and eq["sensor"]:
         sc = sorted(int(c) for c in eq["sensor"])

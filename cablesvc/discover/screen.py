@@ -80,10 +80,16 @@ class BlockScreen:
 
     def select(self, s: Signals, r: np.ndarray, terms: list[Term], train: np.ndarray, valid: np.ndarray,
                noise: Optional[np.ndarray] = None, base: Optional[list[Term]] = None,
-               cache: Optional[DesignCache] = None, progress: Optional[Any] = None, block: float = 1.25) -> ScreenResult:
+               cache: Optional[DesignCache] = None, progress: Optional[Any] = None, block: float = 1.25,
+               evidence: Optional[dict[tuple[str, int], dict[str, Any]]] = None) -> ScreenResult:
         """Screen ``terms`` on every cable of residual ``r`` (N, m) [N] beside the ``base``
         terms (the nuisance, fitted on every cable); ``noise`` (m,) [N] the noise floor;
-        ``block`` [s] the test unit (the pipeline gives half its split block)."""
+        ``block`` [s] the test unit (the pipeline gives half its split block).
+        ``evidence``: (term, cable) pairs named on evidence from outside the force model
+        (the measured forces' equilibrium: :mod:`cablesvc.discover.equilibrium`), each with
+        what it is ({"source", "p", ...}); they pass without the share and block tests, are
+        still tested and recorded like the others, and go into the cable's model."""
+        evidence = dict(evidence or {})
         base = list(base or [])
         m = s.m
         noise = np.full(m, 1.0) if noise is None else np.asarray(noise, float)
@@ -94,15 +100,36 @@ class BlockScreen:
         tests: dict[tuple[str, int], dict[str, Any]] = {}
         hyper: dict[tuple[str, int], dict[str, float]] = {}
         e_base: dict[int, list[np.ndarray]] = {}
+        by_name = {t.name: t for t in terms}
+        # per cable, the terms named on outside evidence come first: the others are tested
+        # beside them (a dead time found in the forces' balance delays every other term's
+        # input, and what it explains is no longer left for them)
+        pre: dict[int, list[Term]] = {c: [] for c in range(m)}
+        hpre: dict[int, list[dict[str, float]]] = {c: [] for c in range(m)}
+        for (n, c) in evidence:
+            if n in by_name and 0 <= c < m and by_name[n].applies(s, c):
+                pre[c].append(by_name[n])
         for c in range(m):
-            e_base[c] = loo_errors(s, c, r[:, c], base, hb, blocks, cache)
+            e_alone = loo_errors(s, c, r[:, c], base, hb, blocks, cache)
+            if pre[c]:
+                f = fit_terms(s, c, r[:, c], base + pre[c], train, hypers=hb + [None] * len(pre[c]), cache=cache)
+                hpre[c] = [f.hyper[t.name] for t in pre[c]]
+                e_base[c] = loo_errors(s, c, r[:, c], base + pre[c], hb + hpre[c], blocks, cache)
+            else:
+                e_base[c] = e_alone
             for t in terms:
                 if not t.applies(s, c):
                     continue
-                f = fit_terms(s, c, r[:, c], base + [t], train, hypers=hb + [None], cache=cache)
-                h = f.hyper[t.name]
-                e1 = loo_errors(s, c, r[:, c], base + [t], hb + [h], blocks, cache)
-                tests[(t.name, c)] = block_gain_test(e_base[c], e1, noise[c])
+                if t in pre[c]:        # its own test, alone against the nuisance, for the record
+                    h = hpre[c][pre[c].index(t)]
+                    e1 = loo_errors(s, c, r[:, c], base + [t], hb + [h], blocks, cache)
+                    tests[(t.name, c)] = block_gain_test(e_alone, e1, noise[c])
+                else:
+                    f = fit_terms(s, c, r[:, c], base + pre[c] + [t], train, hypers=hb + hpre[c] + [None],
+                                  cache=cache)
+                    h = f.hyper[t.name]
+                    e1 = loo_errors(s, c, r[:, c], base + pre[c] + [t], hb + hpre[c] + [h], blocks, cache)
+                    tests[(t.name, c)] = block_gain_test(e_base[c], e1, noise[c])
                 hyper[(t.name, c)] = h
             if progress:
                 progress(c + 1, m)
@@ -110,17 +137,20 @@ class BlockScreen:
         adj = holm({k: v["p"] for k, v in tests.items()}, tries)
         for k, v in tests.items():
             v["p_holm"] = adj[k]
-            v["passed"] = self._ok(v, adj[k])
+            v["passed"] = self._ok(v, adj[k]) or k in evidence
+            if k in evidence:
+                v["evidence"] = dict(evidence[k])
 
-        by_name = {t.name: t for t in terms}
         fits: dict[int, Fit] = {}
         joint: dict[tuple[str, int], dict[str, Any]] = {}
         steps: dict[str, list[int]] = {}
         for c in range(m):
-            passing = sorted((n for (n, cc), v in tests.items() if cc == c and v["passed"]),
+            kept: list[Term] = list(pre[c])
+            hk: list[dict[str, float]] = list(hpre[c])
+            for t in kept:
+                steps.setdefault(t.name, []).append(c)
+            passing = sorted((n for (n, cc), v in tests.items() if cc == c and v["passed"] and by_name[n] not in kept),
                              key=lambda n: -tests[(n, c)]["gain"])
-            kept: list[Term] = []
-            hk: list[dict[str, float]] = []
             for n in passing:
                 t = by_name[n]
                 if kept:
