@@ -226,6 +226,14 @@ def equilibrium_check(geom: Any, t: np.ndarray, position: np.ndarray, orientatio
         taus = tk
         ps[key] = adj1
         cur = e1
+    # each lag was searched beside the ones before it: refit them beside all the others
+    lagging = [i for i, kind in chosen if kind == "delay"]
+    if len(lagging) > 1:
+        for _ in range(2):
+            for i in lagging:
+                rest = [k for k in chosen if k != (i, "delay")]
+                taus = {**taus, i: fit_lag(i, rest, {j: v for j, v in taus.items() if j != i})}
+        cur = loo_of(chosen, taus)
     ratio = float(np.mean(np.concatenate(cur)) / r)
     # the sensor errors' sizes, fitted on all ticks with the chosen columns
     out_sensor: dict[int, dict[str, float]] = {}
