@@ -78,15 +78,31 @@ SMOOTH_S = 0.15
 DELAYS_S = (0.01, 0.02, 0.03, 0.05, 0.07, 0.1, 0.14, 0.2, 0.28, 0.4, 0.56, 0.8, 1.1)
 
 
+def _runs(t: np.ndarray) -> list[slice]:
+    """The stretches of ``t`` without a gap (a step over 1.5 x the median step): a streamed
+    discovery keeps groups of ticks with gaps between them."""
+    if t.size < 2:
+        return [slice(0, t.size)]
+    d = np.diff(t)
+    cut = np.flatnonzero(d > 1.5 * float(np.median(d))) + 1
+    edges = [0, *cut.tolist(), t.size]
+    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
+
+
 def smoothed_force(t: np.ndarray, y: np.ndarray) -> np.ndarray:
     """The measured forces (N, m) [N] smoothed by a local quadratic fit over
-    :data:`SMOOTH_S` (Savitzky-Golay), which keeps their shape and takes off most of the
-    sensor noise."""
+    :data:`SMOOTH_S` (Savitzky-Golay) within each stretch without a gap, which keeps their
+    shape and takes off most of the sensor noise."""
     from scipy.signal import savgol_filter
-    n = y.shape[0]
-    dt = float(np.median(np.diff(t))) if n > 1 else 1.0
+    out = np.array(y, float)
+    if y.shape[0] < 2:
+        return out
+    dt = float(np.median(np.diff(t)))
     w = int(round(SMOOTH_S / max(dt, 1e-9))) | 1
-    return savgol_filter(y, w, 2, axis=0) if 5 <= w < n else np.array(y, float)
+    for run in _runs(t):
+        if 5 <= w < run.stop - run.start:
+            out[run] = savgol_filter(y[run], w, 2, axis=0)
+    return out
 
 
 def _solve(G: np.ndarray, h: np.ndarray) -> np.ndarray:
@@ -155,10 +171,15 @@ def equilibrium_check(geom: Any, t: np.ndarray, position: np.ndarray, orientatio
 
     LA = np.einsum("nij,njm->nim", Li, AT)         # whitened columns of A^T (N, r, m)
 
+    runs = _runs(t)
+
     def ahead(i: int, tau: float) -> np.ndarray:
         # what putting back a lag of tau on cable i adds to the wrench residual (whitened):
         # its reading tau later stands for the present force, A_i^T (y_i(t + tau) - y_i(t))
-        later = np.interp(t + tau, t, ys[:, i], right=ys[-1, i])
+        # (within each stretch without a gap; its last reading stands for what follows)
+        later = np.empty(t.size)
+        for run in runs:
+            later[run] = np.interp(t[run] + tau, t[run], ys[run, i])
         return LA[:, :, i] * (later - ys[:, i])[:, None]
 
     # per cable, two explanations of a wrench residual along its column: a sensor offset
