@@ -526,6 +526,14 @@ class Daemon(ParamsReload, SnapshotState):
                 log.error("closing Zenoh failed: %s", e)
             self.publisher = None
 
+    def _drain(self) -> None:
+        """Step the ticks a threaded source queued (the caller holds the loop's lock)."""
+        for _ in range(10_000):
+            tick = self.source.recv(timeout=0)
+            if tick is None:
+                break
+            self.step(tick)
+
     def close(self) -> None:
         """Stop the source, process what it accepted before it stopped, write the final
         snapshot, close the recording and Zenoh (< 2 s).
@@ -534,6 +542,11 @@ class Daemon(ParamsReload, SnapshotState):
         accept a tick or two (it queues them once the direct sink is gone). Each is stepped
         and published here, so that every accepted tick has its output even at shutdown."""
         self._reload_q.put(None)                  # the reload thread ends (a pending change is dropped)
+        # ticks queued since the loop ended are stepped now: closing a receive thread waits
+        # out its bus timeout (0.1 s for CAN), and they would wait with it
+        if hasattr(self.source, "set_sink") and self._state_lock.acquire(timeout=1.0):
+            with _Held(self._state_lock):
+                self._drain()
         try:
             self.source.close()
         except Exception as e:  # noqa: BLE001
@@ -546,11 +559,7 @@ class Daemon(ParamsReload, SnapshotState):
             return
         with _Held(self._state_lock):
             if hasattr(self.source, "set_sink"):          # queued ticks exist only for threaded sources
-                for _ in range(10_000):
-                    tick = self.source.recv(timeout=0)
-                    if tick is None:
-                        break
-                    self.step(tick)
+                self._drain()
             self.snapshot()
             change, self._pending_params = self._pending_params, None
             if change is not None:                 # prepared, but the loop stopped before the switch
