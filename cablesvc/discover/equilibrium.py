@@ -115,13 +115,6 @@ def _solve(G: np.ndarray, h: np.ndarray) -> np.ndarray:
     return beta / sc
 
 
-def _sse(Xw: np.ndarray, Ww: np.ndarray) -> float:
-    """Sum of squares left by the least-squares fit of the columns Xw (N, r, p) to Ww (N, r)."""
-    beta = _solve(np.einsum("nrp,nrq->pq", Xw, Xw), np.einsum("nrp,nr->p", Xw, Ww))
-    e = Ww - Xw @ beta
-    return float(np.sum(e * e))
-
-
 def _loo(Xw: np.ndarray, Ww: np.ndarray, blocks: list[np.ndarray]) -> list[np.ndarray]:
     """Held-out whitened squared residual per tick, per block (N ticks x r rows stacked):
     the columns fitted on every tick outside the block (normal equations, the block's own
@@ -200,11 +193,16 @@ def equilibrium_check(geom: Any, t: np.ndarray, position: np.ndarray, orientatio
         return X, target
 
     def fit_lag(i: int, keys: list[tuple[int, str]], taus: dict[int, float]) -> float:
-        # the lag of cable i that balances best beside ``keys``: grid, then a bounded search
-        # between the grid's neighbours of the best point
+        # the lag of cable i that balances best beside ``keys`` (least squares on all ticks):
+        # grid, then a bounded search between the grid's neighbours of the best point. The
+        # columns do not depend on the lag, only the target does
+        X, target = design(keys, taus)
+        G = np.einsum("nrp,nrq->pq", X, X)
+
         def sse(tau: float) -> float:
-            X, target = design(keys + [(i, "delay")], {**taus, i: tau})
-            return _sse(X, target)
+            T = target + ahead(i, tau)
+            e = T - X @ _solve(G, np.einsum("nrp,nr->p", X, T))
+            return float(np.sum(e * e))
         scores = [sse(tau) for tau in DELAYS_S]
         k = int(np.argmin(scores))
         lo, hi = DELAYS_S[max(k - 1, 0)], DELAYS_S[min(k + 1, len(DELAYS_S) - 1)]
@@ -228,7 +226,7 @@ def equilibrium_check(geom: Any, t: np.ndarray, position: np.ndarray, orientatio
     for _ in range(tries):
         best = None
         for key in cands:
-            if key in chosen or (key[1] == "delay" and key[0] in taus):
+            if key in chosen:
                 continue
             tk = {**taus, key[0]: fit_lag(key[0], chosen, taus)} if key[1] == "delay" else taus
             e1 = loo_of(chosen + [key], tk)

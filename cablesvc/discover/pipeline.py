@@ -518,10 +518,9 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     eq = equilibrium_check(rob.geometry(), s.t, rec.position, rec.orientation, s.y, noise, block=block / 2.0)
     outside: dict[tuple[str, int], dict[str, Any]] = {}
     lag = next((u for u in cands if u.delays_input), None)
-    if eq["holds"] and lag is not None:
-        for c, d in eq.get("delay", {}).items():
-            if lag.applies(s, int(c)):
-                outside[(lag.name, int(c))] = {"source": "equilibrium", **d}
+    if eq["holds"] and lag is not None:          # the screen keeps those on cables the term applies to
+        for c, d in eq["delay"].items():
+            outside[(lag.name, int(c))] = {"source": "equilibrium", **d}
     # test units: half a split block
     sel = screen.select(s, r, cands, train, valid, noise=noise, base=[nuis], cache=cache, block=block / 2.0,
                         evidence=outside)

@@ -527,7 +527,10 @@ class Daemon(ParamsReload, SnapshotState):
             self.publisher = None
 
     def _drain(self) -> None:
-        """Step the ticks a threaded source queued (the caller holds the loop's lock)."""
+        """Step the ticks a threaded source queued (the caller holds the loop's lock); other
+        sources queue none."""
+        if not hasattr(self.source, "set_sink"):
+            return
         for _ in range(10_000):
             tick = self.source.recv(timeout=0)
             if tick is None:
@@ -542,24 +545,24 @@ class Daemon(ParamsReload, SnapshotState):
         accept a tick or two (it queues them once the direct sink is gone). Each is stepped
         and published here, so that every accepted tick has its output even at shutdown."""
         self._reload_q.put(None)                  # the reload thread ends (a pending change is dropped)
-        # ticks queued since the loop ended are stepped now: closing a receive thread waits
-        # out its bus timeout (0.1 s for CAN), and they would wait with it
-        if hasattr(self.source, "set_sink") and self._state_lock.acquire(timeout=1.0):
+        # a loop stuck in one tick (it cannot be, with parameters in their limits) must not
+        # hold the shutdown: then no final snapshot (the state would be half a tick)
+        stuck = not self._state_lock.acquire(timeout=1.0)
+        if not stuck:
+            # ticks queued since the loop ended are stepped before the source closes: closing
+            # a receive thread waits out its bus timeout (0.1 s for CAN), and they would wait
             with _Held(self._state_lock):
                 self._drain()
         try:
             self.source.close()
         except Exception as e:  # noqa: BLE001
             log.error("closing the source failed: %s", e)
-        # a loop stuck in one tick (it cannot be, with parameters in their limits) must not
-        # hold the shutdown: then no final snapshot (the state would be half a tick)
-        if not self._state_lock.acquire(timeout=1.0):
+        if stuck or not self._state_lock.acquire(timeout=1.0):
             log.error("the loop did not finish its tick within 1 s; no final snapshot")
             self._close_outputs()
             return
         with _Held(self._state_lock):
-            if hasattr(self.source, "set_sink"):          # queued ticks exist only for threaded sources
-                self._drain()
+            self._drain()                                 # what it accepted while closing
             self.snapshot()
             change, self._pending_params = self._pending_params, None
             if change is not None:                 # prepared, but the loop stopped before the switch
