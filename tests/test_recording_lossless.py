@@ -49,8 +49,9 @@ def _one_line_error(proc: subprocess.CompletedProcess, *words: str) -> str:
 
 @pytest.fixture(scope="module")
 def replay_file(tmp_path_factory) -> tuple[Path, int]:
-    """A 10 s, 1 kHz recording of the default robot."""
-    rec = simulate_recording("ipanema3", "trajectory", None, duration=10.0, rate=1000.0, seed=7)
+    """A 3 s, 1 kHz recording of the default robot (3000 ticks: 47 times the small record
+    queue below, and each replay of it costs the suite ~1.6 s instead of ~5.5 s for 10 s)."""
+    rec = simulate_recording("ipanema3", "trajectory", None, duration=3.0, rate=1000.0, seed=7)
     path = tmp_path_factory.mktemp("replay") / "traj.mcap"
     write_recording(path, rec)
     return path, rec.n_ticks
