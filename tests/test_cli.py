@@ -43,7 +43,7 @@ def test_run_embedded_default_runs_and_stops_cleanly():
     here on a free port and for a few seconds."""
     from cablesvc.netutil import free_tcp_port
 
-    r = cli("run", "--no-view", "--no-snapshot", "--seconds", "4", "--listen", f"tcp/127.0.0.1:{free_tcp_port()}")
+    r = cli("run", "--no-view", "--no-snapshot", "--seconds", "2", "--listen", f"tcp/127.0.0.1:{free_tcp_port()}")
     assert r.returncode == 0, r.stderr
     line = next(x for x in r.stderr.splitlines() if "stopped in" in x)
     ticks = int(line.split(" after ")[1].split()[0])
@@ -58,7 +58,7 @@ def test_run_view_shows_an_alarm_raised_before_any_tick():
     from cablesvc.netutil import free_tcp_port
 
     r = cli("run", "--robot", "ipanema3", "--source", "can", "--interface", "virtual", "--channel", "cablesvc-silent",
-            "--no-snapshot", "--seconds", "3", "--listen", f"tcp/127.0.0.1:{free_tcp_port()}")
+            "--no-snapshot", "--seconds", "1.5", "--listen", f"tcp/127.0.0.1:{free_tcp_port()}")
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr and "view failed" not in r.stderr
     assert "input_lost" in r.stdout

@@ -40,7 +40,7 @@ def test_every_robot_ships_its_dbc_files_as_the_generator_writes_them(robot, fd)
 def test_embedded_simulator_runs_for_every_robot(robot):
     """`cablesvc run --robot R` (the embedded simulated controller on a virtual CAN FD bus)
     runs for a few seconds on every shipped robot, and accepts its ticks."""
-    r = cli("run", "--robot", robot, "--no-view", "--no-snapshot", "--seconds", "3",
+    r = cli("run", "--robot", robot, "--no-view", "--no-snapshot", "--seconds", "1.5",
             "--listen", f"tcp/127.0.0.1:{free_tcp_port()}")
     assert r.returncode == 0, r.stderr[-2000:]
     line = next(x for x in r.stderr.splitlines() if "stopped in" in x)

@@ -225,7 +225,7 @@ def test_cli_demo_second_start_is_clean(tmp_path):
     env = {**os.environ, "CABLESVC_STATE_DIR": str(state)}
     for k in range(2):
         out = tmp_path / f"demo{k}.mcap"
-        r = _cli("run", "--no-view", "--seconds", "3", "--record", str(out),
+        r = _cli("run", "--no-view", "--seconds", "2", "--record", str(out),
                  "--listen", f"tcp/127.0.0.1:{free_tcp_port()}", env=env)
         assert r.returncode == 0, r.stderr[-2000:]
         with open(out, "rb") as f:
