@@ -45,15 +45,16 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def wait_until(cond, limit_s: float = 15.0, what: str = "condition"):
-    """Poll ``cond`` until true; fail (not a timing assertion: a hang detector) after limit_s."""
+def wait_until(cond, limit_s: float = 15.0, what="condition"):
+    """Poll ``cond`` until true; fail (not a timing assertion: a hang detector) after limit_s.
+    ``what`` names the condition in the failure, a callable is read at the failure (counts)."""
     end = time.monotonic() + limit_s
     while time.monotonic() < end:
         v = cond()
         if v:
             return v
         time.sleep(0.01)
-    pytest.fail(f"{what} not reached")
+    pytest.fail(f"{what() if callable(what) else what} not reached")
 
 
 def tricky_output(m: int = 5, seed: int = 0) -> TickOutput:
@@ -151,7 +152,7 @@ def test_no_forces_message_is_lost_while_the_subscriber_stalls(endpoint):
         n = 20000       # ~5 MB: more than the 16-batch transmit queue holds, so DROP must lose
         for k in range(n):
             pub.publish_forces(forces_payload("r1", k, out, time.monotonic_ns(), names))
-        wait_until(lambda: len(got) >= n, what=f"{n} forces messages (got {len(got)})")
+        wait_until(lambda: len(got) >= n, what=lambda: f"{n} forces messages (got {len(got)}, the first {got[:3]})")
         assert got == list(range(n))
         assert len(stalls) == 2 and lis.decode_errors == 0
     finally:
