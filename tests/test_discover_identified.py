@@ -133,6 +133,28 @@ def test_equilibrium_tells_a_sensor_offset_from_a_balanced_recording():
     assert bad["sensor"][2]["mean_N"] == pytest.approx(0.5, abs=0.1) and bad["holds"]
 
 
+def test_equilibrium_says_when_it_cannot_place_a_sensor_error():
+    """With 8 cables and 6 wrench rows, over poses within a few cm, offsets on cables 4, 5
+    and 6 balance like one offset on cable 7 (the selection, fewest cables first, picks 7).
+    The check must say that cables 4, 5, 6 balance as well, and the finding's words must
+    carry it, instead of sending a user to recalibrate cable 7 alone."""
+    g, t, P, Q, f, rng = _balanced()
+    y = f + 0.1 * rng.standard_normal(f.shape)
+    noise = np.full(g.n_cables, 0.1)
+    y[:, [4, 5, 6]] += 0.5
+    res = equilibrium_check(g, t, P, Q, y, noise)
+    assert res["holds"]
+    named = set(res["sensor"])
+    alts = {c: set(v["or_cables"]) for c, v in res["sensor"].items()}
+    # the truth is either what was named or, for one named cable, its alternative
+    assert named == {4, 5, 6} or any(o == {4, 5, 6} and named == {c} for c, o in alts.items())
+    assert all(not (o & named) for o in alts.values())          # an alternative names other cables
+    from cablesvc.discover.pipeline import _placement
+    text = _placement(res["sensor"])
+    if named != {4, 5, 6}:
+        assert "4, 5, 6" in text and "cannot place" in text
+
+
 def test_equilibrium_finds_a_force_channel_that_lags_and_how_much():
     """A reading that lags the present force by tau (the platform balances the force, the
     sensor shows the one of tau ago) breaks the balance along that cable's column; putting

@@ -226,6 +226,8 @@ def _realistic_row(spec: Any, seed: int) -> dict[str, Any]:
     return {"kind": spec.kind, "seed": spec.seed, "robot": spec.robot_index, "index": spec.index,
             "truth": [e.describe() for e in case.effects], "truth_names": truth, "truth_cables": affected,
             "effect_rms": case.effect_rms, "named": {f.term: list(f.cables) for f in findings},
+            "or_cables": {f.term: {str(c): list(o) for c, o in f.or_cables.items()}
+                          for f in findings if getattr(f, "or_cables", None)},
             "unexplained": [{"cables": list(u.get("cables", []))} if isinstance(u, dict) else str(u)
                             for u in unexplained],
             "unexplained_on_truth_cables": bool(set(unexpl_cables) & set(affected)),

@@ -29,7 +29,10 @@ along cable i's column of A^T. :func:`equilibrium_check` therefore
    explains the wrench residual. A lag is evidence in the dead time's own variable that no
    error of the cable model can produce: a cable law, however wrong, changes no measured
    force, and the platform balances the forces it reads;
-4. says whether equilibrium holds on the recording at all: when the whitened residual
+4. for each sensor error found, runs the selection again without that cable's sensor
+   columns: with more cables than wrench rows, errors on other cables may balance the
+   platform as well, and then the check says which (it cannot place the error);
+5. says whether equilibrium holds on the recording at all: when the whitened residual
    left is still well above 1, the measured forces do not balance for reasons no sensor
    column explains (dynamics, geometry), and a sensor error cannot be told from a cable's
    pretension or stiffness.
@@ -139,7 +142,9 @@ def equilibrium_check(geom: Any, t: np.ndarray, position: np.ndarray, orientatio
     module docstring). ``noise`` (m,) [N] sensor-noise std per cable. Returns a JSON-able
     dict: ``ratio_raw`` / ``ratio`` whitened mean square per row before / after the fitted
     wrench and sensor columns, ``holds``, ``sensor`` {cable: {"o" [N], "g" [-], "p"}}
-    (cables whose sensor columns explain the residual, Holm-corrected p), ``delay``
+    (cables whose sensor columns explain the residual, Holm-corrected p; ``or_cables``: other
+    cables whose sensor errors balance the platform as well on held-out blocks, empty where
+    the balance places the error), ``delay``
     {cable: {"tau_s" [s], "p"}} (cables whose force channel lags), ``tried`` (the number of
     (cable, explanation) pairs the Holm correction counts)."""
     ik = inverse_kinematics(geom, np.asarray(position, float), np.asarray(orientation, float))
@@ -219,32 +224,35 @@ def equilibrium_check(geom: Any, t: np.ndarray, position: np.ndarray, orientatio
     # forward: the candidate that explains most (mean held-out gain) is added while it passes
     # Holm's correction over every (cable, explanation) pair. A lag's gain is large in fast
     # blocks and small in slow ones, hence the signed-rank test for it; a sensor error's is even.
-    chosen: list[tuple[int, str]] = []
-    taus: dict[int, float] = {}
-    ps: dict[tuple[int, str], float] = {}
-    cur = loo_of(chosen, taus)
-    for _ in range(tries):
-        best = None
-        for key in cands:
-            if key in chosen:
-                continue
-            tk = {**taus, key[0]: fit_lag(key[0], chosen, taus)} if key[1] == "delay" else taus
-            e1 = loo_of(chosen + [key], tk)
-            g = gains(cur, e1)
-            gain = float(np.mean(g))
-            if gain >= MIN_GAIN and (best is None or gain > best[1]):
-                best = (key, gain, g, e1, tk)
-        if best is None:
-            break
-        key, _, g, e1, tk = best
-        p = (signed_rank_test if key[1] == "delay" else t_test)(g)[1]
-        adj1 = holm({**ps, key: p}, tries)[key]
-        if adj1 >= ALPHA:
-            break
-        chosen.append(key)
-        taus = tk
-        ps[key] = adj1
-        cur = e1
+    def forward(chosen: list[tuple[int, str]], taus: dict[int, float], ps: dict[tuple[int, str], float],
+                allowed: list[tuple[int, str]]) -> tuple[list, dict, dict, list[np.ndarray]]:
+        chosen, taus, ps = list(chosen), dict(taus), dict(ps)
+        cur = loo_of(chosen, taus)
+        for _ in range(len(allowed)):
+            best = None
+            for key in allowed:
+                if key in chosen:
+                    continue
+                tk = {**taus, key[0]: fit_lag(key[0], chosen, taus)} if key[1] == "delay" else taus
+                e1 = loo_of(chosen + [key], tk)
+                g = gains(cur, e1)
+                gain = float(np.mean(g))
+                if gain >= MIN_GAIN and (best is None or gain > best[1]):
+                    best = (key, gain, g, e1, tk)
+            if best is None:
+                break
+            key, _, g, e1, tk = best
+            p = (signed_rank_test if key[1] == "delay" else t_test)(g)[1]
+            adj1 = holm({**ps, key: p}, tries)[key]
+            if adj1 >= ALPHA:
+                break
+            chosen.append(key)
+            taus = tk
+            ps[key] = adj1
+            cur = e1
+        return chosen, taus, ps, cur
+
+    chosen, taus, ps, cur = forward([], {}, {}, cands)
     # each lag was searched beside the ones before it: refit them beside all the others
     lagging = [i for i, kind in chosen if kind == "delay"]
     if len(lagging) > 1:
@@ -254,6 +262,24 @@ def equilibrium_check(geom: Any, t: np.ndarray, position: np.ndarray, orientatio
                 taus = {**taus, i: fit_lag(i, rest, {j: v for j, v in taus.items() if j != i})}
         cur = loo_of(chosen, taus)
     ratio = float(np.mean(np.concatenate(cur)) / r)
+    # which cable? With more cables than wrench rows, offsets on several cables can leave
+    # nearly the wrench residual one offset on another cable leaves, over a trajectory whose
+    # poses differ little. For each sensor error found, the selection is run again without
+    # that cable's sensor columns: where other cables' sensor errors balance the platform as
+    # well on held-out blocks (not worse by MIN_GAIN at p < ALPHA), the balance cannot place it
+    others_of: dict[int, list[int]] = {}
+    for i, kind in chosen:
+        if kind != "sensor":
+            continue
+        rest = [k for k in chosen if k != (i, "sensor")]
+        alt, _, _, e_alt = forward(rest, taus, {k: v for k, v in ps.items() if k != (i, "sensor")},
+                                   [(j, "sensor") for j in range(m) if j != i and (j, "sensor") not in chosen])
+        added = sorted(j for j, kind2 in alt if (j, kind2) not in rest)
+        if not added:
+            continue
+        g = gains(e_alt, cur)                              # > 0: the alternative balances worse
+        if not (float(np.mean(g)) >= MIN_GAIN and t_test(g)[1] < ALPHA):
+            others_of[i] = added
     # the sensor errors' sizes, fitted on all ticks with the chosen columns
     out_sensor: dict[int, dict[str, float]] = {}
     out_delay = {i: {"tau_s": taus[i], "p": ps[(i, kind)]} for i, kind in chosen if kind == "delay"}
@@ -266,7 +292,8 @@ def equilibrium_check(geom: Any, t: np.ndarray, position: np.ndarray, orientatio
                 o, g = float(beta[j]), float(beta[j + 1])
                 err = o + g * y[:, i]          # o and g trade off when the tension varies little
                 out_sensor[i] = {"o": o, "g": g, "p": ps[(i, kind)], "mean_N": float(np.mean(err)),
-                                 "rms_N": float(np.sqrt(np.mean(err ** 2)))}
+                                 "rms_N": float(np.sqrt(np.mean(err ** 2))),
+                                 "or_cables": others_of.get(i, [])}
                 j += 2
     return {"ratio_raw": ratio_raw, "ratio": ratio, "holds": bool(ratio <= HOLDS), "threshold": HOLDS,
             "sensor": out_sensor, "delay": out_delay, "tried": tries, "blocks": len(blocks),

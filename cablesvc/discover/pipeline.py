@@ -151,6 +151,9 @@ class Finding:
     #: evidence from outside the force model, in words (the measured forces' balance for a
     #: lagging force channel); empty when the term was named on the block screen alone
     evidence: str = ""
+    #: per cable named, other cables that explain the same evidence as well (the balance
+    #: cannot place a sensor error on one set of cables); empty where the placement is clear
+    or_cables: dict[int, list[int]] = field(default_factory=dict)
 
     @property
     def p_value(self) -> Optional[float]:
@@ -219,7 +222,10 @@ class Discovery:
         def cs(cables) -> str:
             return ",".join(str(c) for c in cables)
 
-        parts = [f"{f.term} on cable{'s' if len(f.cables) > 1 else ''} {cs(f.cables)}" for f in self.findings]
+        def alt(f) -> str:
+            return "".join(f" (or else {cs(o)} for {c})" for c, o in sorted(f.or_cables.items()))
+
+        parts = [f"{f.term} on cable{'s' if len(f.cables) > 1 else ''} {cs(f.cables)}{alt(f)}" for f in self.findings]
         rc = self.recalibration
         if rc.get("cables"):
             parts.append(f"baseline recalibrated on cables {cs(rc['cables'])} ({rc['typical']})")
@@ -325,7 +331,8 @@ class Discovery:
                           "raw_r": {str(k): v for k, v in f.raw_r.items()},
                           "params": {str(k): v for k, v in f.params.items()}, "sentence": f.sentence(),
                           "p": {str(k): v for k, v in f.p.items()}, "p_value": f.p_value,
-                          "share": {str(k): v for k, v in f.share.items()}, "evidence": f.evidence}
+                          "share": {str(k): v for k, v in f.share.items()}, "evidence": f.evidence,
+                          "or_cables": {str(k): v for k, v in f.or_cables.items()}}
                          for f in self.findings],
             "verdict": self.verdict(),
             "recalibration": self.recalibration,
@@ -487,6 +494,19 @@ def _finding(t: Term, cables: list[int], s: Signals, r: np.ndarray, final: dict[
                    r=rr, raw_r=raw, params=phys, p=p, share=dict(share or {}))
 
 
+def _placement(sensor: dict[int, dict[str, Any]]) -> str:
+    """In words, where the measured forces' balance cannot place a sensor error on the
+    cable named (:func:`~cablesvc.discover.equilibrium.equilibrium_check`, ``or_cables``):
+    errors on other cables balance the platform as well, and the fewest cables are named."""
+    alt = {c: v.get("or_cables") for c, v in sensor.items() if v.get("or_cables")}
+    if not alt:
+        return ""
+    parts = [f"cable {c} or else cable{'s' if len(o) > 1 else ''} {', '.join(map(str, o))}"
+             for c, o in sorted(alt.items())]
+    return ("the balance cannot place it on one set of cables alone: " + "; ".join(parts)
+            + " balance the platform as well on held-out blocks (the fewest cables are named; check those first)")
+
+
 def _spectrum_peak(e: np.ndarray, dt: float) -> float:
     """Frequency [Hz] of the largest periodogram peak of ``e`` above DC."""
     P = np.abs(np.fft.rfft(e - e.mean())) ** 2
@@ -586,7 +606,9 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                                 equation="y_i = (1 + g) f_i + o; wrench residual A_i^T (o + g f_i)  (002 eq 2)",
                                 variable="the wrench residual of the measured forces along the cable's column of A^T",
                                 cables=sc, r={}, raw_r={}, params={c: eq["sensor"][c] for c in sc},
-                                p={c: eq["sensor"][c]["p"] for c in sc}))
+                                p={c: eq["sensor"][c]["p"] for c in sc}, evidence=_placement(eq["sensor"]),
+                                or_cables={c: list(eq["sensor"][c]["or_cables"]) for c in sc
+                                           if eq["sensor"][c].get("or_cables")}))
     elif not eq["holds"]:
         # a force offset / gain in the recalibration could be the sensor or the cable
         ambiguous = [c for c in rc_cables if abs(per_cable[str(c)]["offset_at_mean_N"]) > 2.0 * noise[c]]
