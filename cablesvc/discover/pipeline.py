@@ -494,11 +494,11 @@ def _finding(t: Term, cables: list[int], s: Signals, r: np.ndarray, final: dict[
                    r=rr, raw_r=raw, params=phys, p=p, share=dict(share or {}))
 
 
-def _placement(sensor: dict[int, dict[str, Any]]) -> str:
+def _placement(alt: dict[int, list[int]]) -> str:
     """In words, where the measured forces' balance cannot place a sensor error on the
-    cable named (:func:`~cablesvc.discover.equilibrium.equilibrium_check`, ``or_cables``):
-    errors on other cables balance the platform as well, and the fewest cables are named."""
-    alt = {c: v.get("or_cables") for c, v in sensor.items() if v.get("or_cables")}
+    cable named: ``alt`` {named cable: the other cables that balance the platform as well}
+    (``or_cables`` of :func:`~cablesvc.discover.equilibrium.equilibrium_check`); the fewest
+    cables are named."""
     if not alt:
         return ""
     parts = [f"cable {c} or else cable{'s' if len(o) > 1 else ''} {', '.join(map(str, o))}"
@@ -601,14 +601,13 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     ambiguous: list[int] = []
     if eq["holds"] and eq["sensor"]:
         sc = sorted(int(c) for c in eq["sensor"])
+        alt = {c: list(eq["sensor"][c]["or_cables"]) for c in sc if eq["sensor"][c]["or_cables"]}
         og = LIBRARY.get("offset_gain")
         findings.append(Finding(term="offset_gain", label=og.label if og else "sensor offset and gain error",
                                 equation="y_i = (1 + g) f_i + o; wrench residual A_i^T (o + g f_i)  (002 eq 2)",
                                 variable="the wrench residual of the measured forces along the cable's column of A^T",
                                 cables=sc, r={}, raw_r={}, params={c: eq["sensor"][c] for c in sc},
-                                p={c: eq["sensor"][c]["p"] for c in sc}, evidence=_placement(eq["sensor"]),
-                                or_cables={c: list(eq["sensor"][c]["or_cables"]) for c in sc
-                                           if eq["sensor"][c].get("or_cables")}))
+                                p={c: eq["sensor"][c]["p"] for c in sc}, evidence=_placement(alt), or_cables=alt))
     elif not eq["holds"]:
         # a force offset / gain in the recalibration could be the sensor or the cable
         ambiguous = [c for c in rc_cables if abs(per_cable[str(c)]["offset_at_mean_N"]) > 2.0 * noise[c]]
