@@ -91,6 +91,24 @@ def test_restart_after_a_controller_clock_restart_continues_the_hysteresis_and_r
     assert [a for a in alarms if a["action"] == "raise"] == []
 
 
+def test_a_replay_at_speed_0_has_no_wall_clock_input_watch(tmp_path, rec):
+    """A replay read as fast as it can be has no tick period: a stall of this machine raised
+    input_stale in the middle of the restart test above (0.36 s without a tick, CI run). At
+    speed 0 the input watch is off; at speed 1 (the controller's own pace) it is on."""
+    path = tmp_path / "r.mcap"
+    write_recording(path, rec)
+    robot = load_robot("ipanema3")
+    for speed, watched in ((0, False), (1, True), (0.0, False)):
+        d = Daemon(DaemonOptions(robot=robot, params=nominal_params(robot.geometry()),
+                                 source={"kind": "replay", "path": str(path), "speed": speed},
+                                 listen=(f"tcp/127.0.0.1:{free_tcp_port()}",)))
+        try:
+            assert d.alarms.watch.enabled is watched, speed
+            assert d.alarms.watch.stale_s == 0.05 and d.alarms.watch.lost_s == 1.0   # the rest as configured
+        finally:
+            d.close()
+
+
 def test_restored_alarm_since_is_in_the_new_time_base_after_a_clock_restart(tmp_path, rec):
     """An over_limit alarm active at shutdown (force_max 50 N under a 60 N pretension) keeps
     its age: after the clock restarted at 0 its `since` lies before the first tick of the new

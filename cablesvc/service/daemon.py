@@ -162,6 +162,24 @@ class _Held:
         self.lock.release()
 
 
+def _alarm_config(options: "DaemonOptions") -> Any:
+    """The daemon's alarm configuration. A replay at speed 0 (as fast as it is read) has no
+    tick period to watch: the wall-clock input watch (``input_stale`` / ``input_lost``) would
+    time this machine, not the controller (a 0.36 s stall of a loaded machine raised
+    ``input_stale`` in the middle of a speed-0 replay), so it is off there."""
+    from cablesvc.alarms import AlarmConfig
+
+    cfg = options.alarm_config or AlarmConfig()
+    src = options.source if isinstance(options.source, dict) else {}
+    try:
+        as_fast = src.get("kind") == "replay" and float(src.get("speed", 1.0)) == 0.0
+    except (TypeError, ValueError):
+        as_fast = False                  # the source's own validation names the bad speed
+    if as_fast and cfg.input.enabled:
+        cfg = cfg.model_copy(update={"input": cfg.input.model_copy(update={"enabled": False})})
+    return cfg
+
+
 class Daemon(ParamsReload, SnapshotState):
     """Source, kernel, alarms, publisher: see the module docstring.
 
@@ -171,7 +189,7 @@ class Daemon(ParamsReload, SnapshotState):
     """
 
     def __init__(self, options: DaemonOptions, *, source=None, publisher_factory: Callable | None = None):
-        from cablesvc.alarms import AlarmConfig, AlarmManager
+        from cablesvc.alarms import AlarmManager
         from hdrh.histogram import HdrHistogram
 
         # The loop, the CAN receive thread and Zenoh's callbacks share the GIL. Python's default
@@ -186,7 +204,7 @@ class Daemon(ParamsReload, SnapshotState):
         self.params = options.params
         self.fingerprint = params_fingerprint(options.params)
         self.predictor = Predictor(self.geom, options.params)
-        self.alarms = AlarmManager(self.geom, options.params, options.alarm_config or AlarmConfig())
+        self.alarms = AlarmManager(self.geom, options.params, _alarm_config(options))
         self.stats = LoopStats()
         self.hist = HdrHistogram(1, 60_000_000, 3)          # microseconds, input stamp -> published
         self.problems: deque = deque(maxlen=200)           # recent rejected inputs (for status)
