@@ -62,8 +62,15 @@ def test_piece_boundaries_inside_hysteresis_branches_change_nothing(tmp_path):
     one = read_reduced(p, rob, base, chunk_ticks=10**6)
     many = read_reduced(p, rob, base, chunk_ticks=777)
     assert one.info["decimation"] == 10 and one.signals.n == 800
-    for k in ("t", "y", "f0", "x", "v", "v_slide", "wrap", "free_length", "amplitude", "temperature"):
+    for k in ("t", "y", "v_slide", "amplitude", "temperature"):      # read and averaged: the very numbers
         np.testing.assert_array_equal(getattr(many.signals, k), getattr(one.signals, k), err_msg=k)
+    # through the inverse kinematics, whose vectorised loops may round the last bit of a
+    # cable length differently for a batch of 77 poses than for one of 800 (3.6e-15 m on
+    # this machine, 2e-9 N after the hysteresis model): equal to within that rounding. A
+    # state carried wrongly across a piece boundary is off by millimetres and newtons
+    for k in ("f0", "x", "v", "wrap", "free_length"):
+        np.testing.assert_allclose(getattr(many.signals, k), getattr(one.signals, k), rtol=1e-9, atol=1e-9,
+                                   err_msg=k)
     # most boundaries fell inside branches: the elongation was moving there on every cable
     at = np.arange(777, 8000, 777) // 10
     assert int(np.sum(np.all(np.abs(one.signals.v[at]) > 0, axis=1))) >= 5
