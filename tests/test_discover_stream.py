@@ -150,3 +150,135 @@ def test_bench_discover_scale_small(tmp_path):
     assert row["named"] == ["pulley"] and row["cables"] == {"pulley": [1, 4]}
     assert 0 < row["seconds"] and 50 < row["peak_rss_mb"] < 2048
     assert res["same_terms_at_every_size"]
+
+
+def _one_winch_at_a_time(path, seconds_per_cable=10.0, rate=100.0):
+    """A recording (pose at home) in which cable c alone moves, a 1 mm sine around 60 N,
+    during the c-th window of ``seconds_per_cable`` s (002 Sec 4's calibration, each winch
+    in turn); the other cables hold their tension (+ 0.1 N noise)."""
+    from cablesvc.recording import Recording
+    rng = np.random.default_rng(4)
+    m = 8
+    n = int(round(m * seconds_per_cable * rate))
+    t = np.arange(n) / rate
+    win = (t // seconds_per_cable).astype(int)
+    move = np.zeros((n, m))
+    move[np.arange(n), win] = 1e-3 * np.sin(2 * np.pi * 0.5 * t)
+    f = 60.0 + 15000.0 * move + 0.1 * rng.standard_normal((n, m))
+    rec = Recording(robot=ROBOT, metadata={}, t=t, seq=np.arange(n, dtype=np.int64), motor_length=2.0 - move,
+                    position=np.zeros((n, 3)), orientation=np.tile([0.0, 0.0, 0.0, 1.0], (n, 1)), force=f,
+                    temperature=None)
+    write_recording(path, rec)
+    return rec
+
+
+def test_identify_sampling_keeps_every_winch_of_a_calibration_that_moves_one_at_a_time(tmp_path):
+    """The even spread in time (discovery's sampling) keeps 2 of 8 groups and so 2 of the 8
+    cables that moved; identification's excitation-aware selection keeps every cable's
+    movement even when asked for 2 groups (a fit on cables that never move in the ticks
+    kept is no fit: the CLI wrote K1 = 0.6 N/m for such cables before)."""
+    from cablesvc.discover.stream import COVER, select_groups
+    p = tmp_path / "seq.mcap"
+    _one_winch_at_a_time(p)
+    rob = load_robot(ROBOT)
+    spread, info_s = reduced_recording(p, rob, max_groups=2)
+    moving = lambda r: set(np.flatnonzero(np.ptp(r.force, axis=0) > 10.0).tolist())      # noqa: E731
+    assert len(moving(spread)) <= 2 and info_s["groups_kept"] == 2
+    red, info = reduced_recording(p, rob, max_groups=2, select="excitation")
+    assert moving(red) == set(range(8))
+    assert info["groups_kept"] == 8 and info["groups_to_cover_every_cable"] == 8 and info["groups_seen"] == 8
+    # the platform is held still (a calibration): kept whole when it has no more groups than
+    # held_groups (the amplitude model's per-level fit needs every level), selected otherwise
+    assert info["position_span_m"] == 0.0 and "held_calibration" not in info
+    _, whole = reduced_recording(p, rob, max_groups=2, select="excitation", held_groups=8)
+    assert whole["held_calibration"] and whole["groups_kept"] == 8
+    _, over = reduced_recording(p, rob, max_groups=2, select="excitation", held_groups=7)
+    assert "held_calibration" not in over
+    # the selection alone: a cable excited in two groups needs only one of them; at least k
+    score = np.full((12, 3), 0.1)
+    score[[1, 7], 0] = [5.0, 4.0]
+    score[4, 1] = 3.0
+    score[10, 2] = 8.0
+    chosen, needed = select_groups(score, 5)
+    assert needed == 3 and len(chosen) == 5 and chosen == sorted(chosen)
+    assert {4, 10} <= set(chosen) and ({1, 7} & set(chosen))
+    assert select_groups(score, 20) == (list(range(12)), 0)
+    const = score.copy()
+    const[:, 2] = 0.0                                             # a cable whose force never varies
+    chosen, needed = select_groups(const, 1)
+    assert needed == 2 and len(chosen) == 2 and COVER <= 1.0
+
+
+def test_identify_cli_fits_a_long_sequential_calibration_on_every_cable(tmp_path):
+    """`cablesvc identify --model amplitude` on 002 Sec 4's calibration (hold-sine, one
+    winch after the other, 29 040 ticks at 100 Hz: longer than the streaming threshold)
+    fits every cable to the noise: the whole recording is used, not 3 groups of it."""
+    from cablesvc.cli.main import main
+    from cablesvc.config.params import load_params
+    from cablesvc.simulate import simulate_recording
+    p = tmp_path / "cal.mcap"
+    simulate_recording(ROBOT, "hold-sine", p, rate=100.0, seed=3, mode="sequential")
+    out = tmp_path / "p.toml"
+    assert main(["identify", "--model", "amplitude", "--robot", ROBOT, str(p), "--out", str(out), "--quiet"]) == 0
+    ident = load_params(out).identification
+    assert "stream" not in ident or ident["stream"]["groups_kept"] == ident["stream"]["groups_seen"]
+    rmse = np.asarray(ident["rmse"], float)
+    assert rmse.shape == (8,) and np.all(rmse < 0.13), rmse
+
+
+def _with_dropouts(rec):
+    import dataclasses
+    f = rec.force.copy()
+    f[300:420, 2] = np.nan                      # a force sensor drops out for 1.2 s
+    pos = rec.position.copy()
+    pos[700] = np.nan                           # one pose missing
+    temp = rec.temperature.copy()
+    temp[50:60] = np.nan                        # the thermometer too
+    return dataclasses.replace(rec, force=f, position=pos, temperature=temp)
+
+
+def test_readings_that_drop_out_are_left_out_counted_and_named(tmp_path):
+    """Ticks with a force, pose or length that is not finite (a dropout written as null)
+    are left out, counted and named in the report; discovery on what is left names the
+    same terms with the same parameters (it failed with 'SVD did not converge' before).
+    A temperature column with holes is left out as a column."""
+    rob = load_robot(ROBOT)
+    rec = _sim(None, ["viscous:8000@3", "pulley:0.004@1"], 7, 12.0, 100)
+    terms = library(["viscous", "pulley", "temperature"])
+    a = discover(rec, rob, terms=terms, exact_baseline=True)
+    b = discover(_with_dropouts(rec), rob, terms=terms, exact_baseline=True)
+    dr = b.options["dropped"]
+    assert dr["ticks"] == 121 and dr["of"] == 1200 and dr["runs"] == 2 and dr["temperature_column_dropped"]
+    assert dr["channels"]["force of cable 2"]["ticks"] == 120 and dr["channels"]["pose"]["ticks"] == 1
+    assert dr["channels"]["force of cable 2"]["first_t"] == pytest.approx(3.0)
+    text = "\n".join(b.summary())
+    assert "left out 121 of 1200 ticks" in text and "force of cable 2 missing on 120 ticks" in text
+    assert b.signals.temperature is None and b.to_json()["dropped"]["ticks"] == 121
+    assert {f.term: f.cables for f in a.findings} == {f.term: f.cables for f in b.findings} \
+        == {"viscous": [3], "pulley": [1]}
+    fa = {f.term: f for f in a.findings}
+    fb = {f.term: f for f in b.findings}
+    assert fb["viscous"].params[3]["c_v"] == pytest.approx(fa["viscous"].params[3]["c_v"], rel=0.05)
+    assert fb["pulley"].params[1]["mu"] == pytest.approx(fa["pulley"].params[1]["mu"], rel=0.05)
+    assert "dropped" not in a.options
+
+
+def test_streamed_path_leaves_out_a_mean_with_no_reading_and_averages_the_rest(tmp_path):
+    """1 kHz decimated by 10: a dropout over 50 ticks (5 whole means) leaves 5 analysis ticks
+    out; a single missing reading is left out of its mean, which averages the other 9."""
+    import dataclasses
+    p = tmp_path / "n.mcap"
+    rec = _sim(None, ["viscous:8000@3"], 7, 12.0, 1000)
+    f = rec.force.copy()
+    f[3000:3050, 1] = np.nan
+    f[5003, 4] = np.nan
+    write_recording(p, dataclasses.replace(rec, force=f))
+    rob = load_robot(ROBOT)
+    red = read_reduced(p, rob, baseline_params(rob), chunk_ticks=777)
+    assert red.info["dropped_ticks"] == 5 and red.signals.n == 1195
+    assert np.all(np.isfinite(red.signals.y)) and np.all(np.isfinite(red.signals.f0))
+    k = int(np.flatnonzero(np.isclose(red.t, rec.t[5000:5010].mean() - rec.t[0]))[0])
+    assert red.signals.y[k, 4] == pytest.approx(np.mean(np.delete(rec.force[5000:5010, 4], 3)), abs=1e-9)
+    d = discover_stream(p, rob, terms=library(["viscous", "pulley"]), exact_baseline=True)
+    assert {f.term: f.cables for f in d.findings} == {"viscous": [3]}
+    assert "5 analysis ticks left out" in "\n".join(d.summary())

@@ -40,9 +40,14 @@ examples:
 
 
 #: --stream auto reduces only recordings longer than this many ticks (20 s at 1 kHz, 200 s
-#: at 100 Hz): shorter ones, and every calibration recording of the benches (100 Hz, at
-#: most a minute), are fitted whole as before
+#: at 100 Hz): shorter ones are fitted whole
 STREAM_MIN_TICKS = 20_000
+#: a platform held still (a 002 Sec 4 calibration) with up to this many 10 s groups is kept
+#: whole for the amplitude model, which is fitted per amplitude level (002 Sec 3) and needs
+#: every level of every cable; that fit costs seconds (4.3 s on the realistic bench's
+#: 34 648-tick calibration). Other recordings, and the swarm-fitted models, keep
+#: --max-groups groups, more where it takes more for every cable to be excited in them
+HELD_GROUPS_AMPLITUDE = 48
 
 
 def _parse_cables(text: str | None) -> list[int] | None:
@@ -88,11 +93,15 @@ def cmd_identify(args: argparse.Namespace) -> int:
         from cablesvc.cli.stream_args import wants_streaming
         from cablesvc.discover.stream import reduced_recording
         from cablesvc.recording import read_metadata
+        if args.max_groups < 1:
+            raise ConfigError(f"--max-groups {args.max_groups}: must be >= 1")
         if wants_streaming(args, rec_path, 2.5, min_ticks=STREAM_MIN_TICKS):
             file_robot = read_metadata(rec_path).get("robot", "")
             robot = load_robot(args.robot or file_robot)           # RobotFileError: one line as it is
             rec, reduction = reduced_recording(rec_path, robot, rate=args.analysis_rate,
-                                               max_groups=args.max_groups)
+                                               max_groups=args.max_groups, select="excitation",
+                                               held_groups=HELD_GROUPS_AMPLITUDE if args.model == "amplitude"
+                                               else None)
             rec.robot = file_robot
         else:
             rec = read_recording(rec_path)
@@ -217,11 +226,13 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     from cablesvc.cli.stream_args import add_stream_arguments
     add_stream_arguments(p, max_groups=3, doc="docs/identification.md",
                          what="read the recording in pieces, decimated to --analysis-rate and sampled by whole "
-                              "10 s groups",
+                              "10 s groups chosen so that every cable is excited in them",
                          auto="when the recording has more than 20 000 ticks and is faster than 1.5 x the "
                               "analysis rate or longer than --max-groups groups",
-                         groups="10 s groups kept (default 3: 3000 ticks at 100 Hz; the swarm and the "
-                                "least-squares refinement cost 1-4 minutes on 6000)")
+                         groups="10 s groups kept, more where it takes more for every cable to be excited "
+                                "in them (default 3: the swarm and the least-squares refinement cost 1-4 "
+                                "minutes on 6000 ticks); --model amplitude keeps a calibration (platform held "
+                                "still) of up to 48 groups whole, since it is fitted per amplitude level")
     p.add_argument("--json", action="store_true",
                    help="print the fleet JSON (one row per recording and the fleet summary; runs as a fleet)")
     from cablesvc.batch.cli import add_fleet_arguments

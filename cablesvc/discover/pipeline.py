@@ -55,10 +55,21 @@ def as_robot(robot: Union[Robot, str, "os.PathLike[str]"]) -> Robot:
 def describe_reduction(st: dict[str, Any]) -> str:
     """One line on what the streamed path (:mod:`cablesvc.discover.stream`) read and kept: the
     ``stream`` entry of a discovery report or of a parameter file ``cablesvc identify`` wrote."""
+    if st.get("selection") == "excitation" and st.get("held_calibration"):
+        how = "all of them: the platform is held still, a calibration"
+    elif st.get("selection") == "excitation" and st["groups_kept"] >= st["groups_seen"]:
+        how = "all of them"
+    elif st.get("selection") == "excitation":
+        how = "chosen so that every cable is excited in them"
+        if st.get("groups_to_cover_every_cable", 0) > st.get("max_groups", 0):
+            how += f", {st['groups_to_cover_every_cable']} needed for that (more than --max-groups {st['max_groups']})"
+    else:
+        how = f"stride {st['group_stride']}"
     return (f"streamed: {st['ticks']} ticks at {st['rate_hz']:.4g} Hz read in pieces, decimated to "
             f"{st['analysis_rate_hz']:.4g} Hz by {st['decimation']}-tick means; analysed {st['groups_kept']} of "
-            f"{st['groups_seen']} split groups of {st['group_s']:g} s (stride {st['group_stride']}, "
-            f"{st['analysis_ticks']} ticks)")
+            f"{st['groups_seen']} split groups of {st['group_s']:g} s ({how}, {st['analysis_ticks']} ticks)"
+            + (f"; {st['dropped_ticks']} analysis ticks left out, a reading missing or not finite on every tick "
+               f"of their mean" if st.get("dropped_ticks") else ""))
 
 
 def baseline_params(robot: Robot, params: Union[None, str, "os.PathLike[str]", ModelParams] = None) -> ModelParams:
@@ -248,6 +259,9 @@ class Discovery:
         st = self.options.get("stream")
         if st:
             lines.append(describe_reduction(st) + "; fits and held-out scores are on those ticks")
+        dr = self.options.get("dropped")
+        if dr:
+            lines.append(describe_dropped(dr))
         loc = self.location
         if loc["flagged"]:
             lines.append("cables whose residual exceeds the sensor-noise floor: "
@@ -350,6 +364,7 @@ class Discovery:
             "noise_floor": [float(v) for v in self.noise],
             "rmse_reduction": self.reduction(),
             "stream": self.options.get("stream"),
+            "dropped": self.options.get("dropped"),
             "summary": self.summary(),
             "cables": m,
         }
@@ -379,6 +394,70 @@ def _since(rec: Any, s: Signals, since: float) -> tuple[Any, Signals]:
     return rec.slice(k0), s2
 
 
+def finite_ticks(rec: Any) -> tuple[Any, Optional[np.ndarray], Optional[dict[str, Any]]]:
+    """The recording without the ticks that miss a reading discovery needs (a force, a
+    motor length, the pose or the time not finite, e.g. a sensor dropout written as null),
+    the mask of ticks that follow a gap so made (``breaks``; None when nothing was left
+    out) and what was left out (``dropped``: ticks, runs, per channel the count and the
+    first time, in the report and the JSON). The baseline runs across a gap as if the
+    record were one, as on the streamed path; the noise floor skips the jumps. A
+    temperature column that is not finite on some ticks is dropped as a column (the
+    temperature term is then not tried), not the ticks."""
+    import dataclasses as _dc
+
+    n = int(np.asarray(rec.t).shape[0])
+    chans: dict[str, np.ndarray] = {"time": np.isfinite(np.asarray(rec.t, float))}
+    ml = np.asarray(rec.motor_length, float)
+    for c in range(ml.shape[1]):
+        chans[f"motor length of cable {c}"] = np.isfinite(ml[:, c])
+    if rec.force is not None:
+        f = np.asarray(rec.force, float)
+        for c in range(f.shape[1]):
+            chans[f"force of cable {c}"] = np.isfinite(f[:, c])
+    if rec.position is not None and rec.orientation is not None:
+        chans["pose"] = (np.all(np.isfinite(np.asarray(rec.position, float)), axis=1)
+                         & np.all(np.isfinite(np.asarray(rec.orientation, float)), axis=1))
+    ok = np.ones(n, bool)
+    for v in chans.values():
+        ok &= v
+    temp = rec.temperature
+    temp_dropped = temp is not None and not np.all(np.isfinite(np.asarray(temp, float)))
+    if ok.all() and not temp_dropped:
+        return rec, None, None
+    t = np.asarray(rec.t, float)
+    per = {k: {"ticks": int((~v).sum()), "first_t": float(t[np.flatnonzero(~v)[0]] - t[np.isfinite(t)][0])
+               if np.isfinite(t).any() else None}
+           for k, v in chans.items() if not v.all()}
+    keep = np.flatnonzero(ok)
+    runs = int(np.count_nonzero(np.diff(np.r_[1, ok.astype(np.int8), 1]) == -1))
+    dropped = {"ticks": int(n - keep.size), "of": n, "runs": runs, "channels": per,
+               "temperature_column_dropped": bool(temp_dropped)}
+    def cut(a: Any) -> Any:
+        return None if a is None else np.asarray(a)[keep]
+    out = _dc.replace(rec, t=t[keep], seq=np.asarray(rec.seq)[keep], motor_length=ml[keep],
+                      position=cut(rec.position), orientation=cut(rec.orientation), force=cut(rec.force),
+                      temperature=None if temp_dropped else cut(temp))
+    breaks = np.zeros(keep.size, bool)
+    if keep.size:
+        breaks[1:] = np.diff(keep) > 1
+        breaks[0] = True
+    return out, breaks, dropped
+
+
+def describe_dropped(dr: dict[str, Any]) -> str:
+    """One line on what :func:`finite_ticks` left out."""
+    parts = []
+    for k, v in dr.get("channels", {}).items():
+        when = f" (first at t = {v['first_t']:.3g} s)" if v.get("first_t") is not None else ""
+        parts.append(f"{k} missing on {v['ticks']} ticks{when}")
+    line = (f"left out {dr['ticks']} of {dr['of']} ticks in {dr['runs']} gap(s) with a reading missing or not "
+            f"finite: " + "; ".join(parts) if dr.get("ticks") else "")
+    if dr.get("temperature_column_dropped"):
+        line = (line + "; " if line else "") + ("the temperature is not finite on some ticks: the temperature "
+                                                "column was left out (the temperature term is not tried)")
+    return line
+
+
 def discover(recording: Any, robot: Union[Robot, str, "os.PathLike[str]"],
              params: Union[None, str, "os.PathLike[str]", ModelParams] = None, *,
              terms: Optional[list[Term]] = None, selector: Any = None, block: float = 2.5,
@@ -405,11 +484,19 @@ def discover(recording: Any, robot: Union[Robot, str, "os.PathLike[str]"],
     rob = as_robot(robot)
     rec = recording if not isinstance(recording, (str, os.PathLike)) else read_recording(recording)
     base = baseline_params(rob, params)
+    rec, breaks, dropped = finite_ticks(rec)
     s = build_signals(rec, rob, base)
     if since is not None and since > 0:
+        k0 = int(np.searchsorted(s.t, since - 1e-9))
         rec, s = _since(rec, s, float(since))
-    return discover_signals(rec, rob, base, s, terms=terms, selector=selector, block=block,
-                            exact_baseline=exact_baseline, t_origin=float(rec.t[0]))
+        breaks = None if breaks is None else breaks[k0:].copy()
+        if breaks is not None and breaks.size:
+            breaks[0] = True
+    d = discover_signals(rec, rob, base, s, terms=terms, selector=selector, block=block,
+                         exact_baseline=exact_baseline, t_origin=float(rec.t[0]), breaks=breaks)
+    if dropped:
+        d.options["dropped"] = dropped
+    return d
 
 
 def discover_signals(rec: Any, rob: Robot, base: ModelParams, s: Signals, *, terms: Optional[list[Term]],

@@ -48,7 +48,8 @@ from cablesvc.kinematics import inverse_kinematics
 from cablesvc.models.reversal import amplitude_stream
 from cablesvc.models.terms import Signals
 
-__all__ = ["ReducedRecording", "read_reduced", "discover_stream", "wants_stream", "ANALYSIS_RATE", "MAX_GROUPS"]
+__all__ = ["ReducedRecording", "read_reduced", "discover_stream", "wants_stream", "reduced_recording",
+           "group_excitation", "select_groups", "ANALYSIS_RATE", "MAX_GROUPS", "COVER", "HELD_SPAN"]
 
 #: default analysis rate [Hz]
 ANALYSIS_RATE = 100.0
@@ -74,10 +75,12 @@ class ReducedRecording:
 
 
 class BlockAccumulator:
-    """Keeps the decimated ticks of the kept groups (stride doubling, see the module)."""
+    """Keeps the decimated ticks of the kept groups: stride doubling (see the module), or,
+    with ``keep``, exactly the groups of that set (chosen beforehand, :func:`select_groups`)."""
 
-    def __init__(self, group_s: float, max_groups: int):
+    def __init__(self, group_s: float, max_groups: int, keep: Optional[set[int]] = None):
         self.group_s, self.max_groups = group_s, max_groups
+        self.keep = keep
         self.stride = 1
         self.groups: dict[int, list[dict[str, np.ndarray]]] = {}
         self.seen = -1
@@ -87,6 +90,11 @@ class BlockAccumulator:
         if g.size:
             self.seen = max(self.seen, int(g[-1]))
         for gi in np.unique(g):
+            if self.keep is not None:
+                if int(gi) in self.keep:
+                    sel = g == gi
+                    self.groups.setdefault(int(gi), []).append({k: v[sel] for k, v in cols.items()})
+                continue
             if gi % self.stride:
                 continue
             sel = g == gi
@@ -112,8 +120,19 @@ class BlockAccumulator:
 
 
 def _block_means(a: np.ndarray, D: int) -> np.ndarray:
+    """Means of every ``D`` consecutive rows; a reading that is not finite (a dropout
+    written as null) is left out of its mean, and a mean of none is NaN."""
     n = a.shape[0] // D
-    return a[: n * D].reshape((n, D) + a.shape[1:]).mean(axis=1)
+    b = a[: n * D].reshape((n, D) + a.shape[1:])
+    ok = np.isfinite(b)
+    if ok.all():
+        return b.mean(axis=1)
+    cnt = ok.sum(axis=1)
+    return np.where(cnt > 0, np.where(ok, b, 0.0).sum(axis=1) / np.maximum(cnt, 1), np.nan)
+
+
+#: the decimated columns a tick cannot do without (the temperature may be missing)
+_NEEDED = ("t", "ml", "pos", "ori", "y")
 
 
 class _Decimator:
@@ -129,6 +148,7 @@ class _Decimator:
         self.raw_dt = 1.0 / rate
         self.D = 1
         self.has_temp = False
+        self.dropped = 0        # analysis ticks left out: a reading missing or not finite
 
     def __iter__(self):
         from cablesvc.recording.chunks import iter_chunks
@@ -167,6 +187,14 @@ class _Decimator:
             dec = {k: _block_means(v[: nd * D], D) if D > 1 else v[:nd] for k, v in cols.items()}
             if D > 1:        # a mean of unit quaternions (all close together) is renormalised
                 dec["ori"] = dec["ori"] / np.linalg.norm(dec["ori"], axis=1, keepdims=True)
+            ok = np.ones(nd, bool)
+            for k in _NEEDED:
+                ok &= np.isfinite(dec[k]).reshape(nd, -1).all(axis=1)
+            if not ok.all():     # a reading missing on every tick of a mean: the tick is left out
+                self.dropped += int((~ok).sum())
+                dec = {k: v[ok] for k, v in dec.items()}
+                if not ok.any():
+                    continue
             yield dec
 
 
@@ -176,7 +204,8 @@ def _reduction_info(src: "_Decimator", acc: BlockAccumulator, groups: list[int],
     return {"t0": src.t0, "ticks": src.ticks, "rate_hz": 1.0 / src.raw_dt,
             "analysis_rate_hz": 1.0 / (src.raw_dt * src.D), "decimation": src.D, "analysis_ticks": analysis_ticks,
             "groups_seen": acc.seen + 1, "groups_kept": len(groups), "group_stride": acc.stride,
-            "group_s": 4.0 * block, "max_groups": max_groups, "stream_seconds": time.perf_counter() - t_start}
+            "group_s": 4.0 * block, "max_groups": max_groups, "dropped_ticks": int(src.dropped),
+            "stream_seconds": time.perf_counter() - t_start}
 
 
 def read_reduced(path: Any, robot: Robot, params: ModelParams, *, rate: float = ANALYSIS_RATE,
@@ -238,7 +267,7 @@ def read_reduced(path: Any, robot: Robot, params: ModelParams, *, rate: float = 
     if not kept or kept["t"].size < 200:
         raise DiscoveryError(f"the recording is too short for a held-out split "
                              f"({0 if not kept else kept['t'].size} analysis ticks, need >= 200)")
-    temp = kept["T"] if has_temp and not np.all(np.isnan(kept["T"])) else None
+    temp = kept["T"] if has_temp and np.all(np.isfinite(kept["T"])) else None
     s = Signals(t=kept["t"], dt=float(raw_dt * D), y=kept["y"], f0=kept["f0"], x=kept["x"], v=kept["v"],
                 v_slide=kept["v_slide"], wrap=kept["wrap"], free_length=kept["free_length"], temperature=temp,
                 ea=np.asarray(geom.ea, float), has_pulley=np.asarray(geom.has_pulley, bool),
@@ -293,13 +322,107 @@ def discover_stream(path: Any, robot: Any, params: Any = None, *, terms: Optiona
     return d
 
 
+def group_excitation(src: "_Decimator", group_s: float) -> tuple[np.ndarray, float]:
+    """(G, m) standard deviation [N] of the measured force of each cable within each group
+    of ``group_s`` s of the decimated recording ``src`` (one pass; memory per group, not
+    per tick; non-finite readings are left out, a group without any counts 0), and the
+    largest span of the platform position over the whole recording [m] (0 for a platform
+    held still: a calibration, 002 Sec 4)."""
+    n: dict[int, np.ndarray] = {}
+    s1: dict[int, np.ndarray] = {}
+    s2: dict[int, np.ndarray] = {}
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for dec in src:
+        lo = np.minimum(lo, dec["pos"].min(axis=0)) if dec["pos"].size else lo
+        hi = np.maximum(hi, dec["pos"].max(axis=0)) if dec["pos"].size else hi
+        g = np.floor(dec["t"] / group_s).astype(np.int64)
+        y = dec["y"]
+        ok = np.isfinite(y)
+        y0 = np.where(ok, y, 0.0)
+        for gi in np.unique(g):
+            sel = g == gi
+            k = int(gi)
+            if k not in n:
+                n[k], s1[k], s2[k] = np.zeros(y.shape[1]), np.zeros(y.shape[1]), np.zeros(y.shape[1])
+            n[k] += ok[sel].sum(axis=0)
+            s1[k] += y0[sel].sum(axis=0)
+            s2[k] += (y0[sel] ** 2).sum(axis=0)
+    span = float(np.max(hi - lo)) if np.all(np.isfinite(hi - lo)) else 0.0
+    if not n:
+        return np.zeros((0, 0)), span
+    G = max(n) + 1
+    m = next(iter(n.values())).size
+    out = np.zeros((G, m))
+    for k in n:
+        cnt = np.maximum(n[k], 1.0)
+        mean = s1[k] / cnt
+        out[k] = np.where(n[k] > 1, np.sqrt(np.maximum(s2[k] / cnt - mean ** 2, 0.0)), 0.0)
+    return out, span
+
+
+#: the platform counts as held still (a calibration) when its position spans less [m]
+HELD_SPAN = 1e-4
+
+
+#: a cable counts as covered by the groups kept when they hold a group with at least this
+#: fraction of its largest within-group force variation
+COVER = 0.5
+
+
+def select_groups(score: np.ndarray, k: int) -> tuple[list[int], int]:
+    """Which of G groups to keep, given ``score`` (G, m) (:func:`group_excitation`):
+    ``(sorted group indices, groups it took to cover every cable)``; at least ``k`` groups
+    (all of them when G <= k).
+
+    A recording that excites the cables one at a time (002 Sec 4's calibration: each
+    winch in turn) has each cable's information in a few groups only, and groups evenly
+    spaced in time miss most cables. So the groups are first chosen to cover every cable:
+    each cable's score is scaled by its largest (every cable weighs the same, whatever its
+    tension), and the group that adds most to the sum over cables of min(COVER, best so
+    far) is taken next, until every cable holds a group with at least :data:`COVER` of its
+    largest variation, even beyond ``k``. The rest of ``k`` is spread evenly over the
+    recording, as the one-pass sampling does (a slow drift is seen)."""
+    G = score.shape[0]
+    if G <= k:
+        return list(range(G)), 0
+    top = score.max(axis=0)
+    s = np.where(top > 0, score / np.where(top > 0, top, 1.0), 0.0)
+    cov = np.where(top > 0, 0.0, COVER)        # a cable whose force never varies has nothing to cover
+    free = np.ones(G, bool)
+    chosen: list[int] = []
+    while np.any(cov < COVER) and free.any():
+        gain = (np.minimum(COVER, np.maximum(cov, s)) - np.minimum(COVER, cov)).sum(axis=1)
+        g = int(np.argmax(np.where(free, gain, -1.0)))
+        chosen.append(g)
+        free[g] = False
+        cov = np.maximum(cov, s[g])
+    needed = len(chosen)
+    need = k - needed
+    if need > 0:
+        rest = np.flatnonzero(free)
+        pick = rest[np.unique(np.linspace(0, rest.size - 1, min(need, rest.size)).round().astype(int))]
+        chosen.extend(int(x) for x in pick)
+    return sorted(chosen), needed
+
+
 def reduced_recording(path: Any, robot: Robot, *, rate: float = ANALYSIS_RATE, block: float = 2.5,
-                      max_groups: int = MAX_GROUPS, chunk_ticks: int = 200_000) -> tuple[Any, dict[str, Any]]:
-    """The recording at ``path`` decimated to ``rate`` by block means and sampled by at most
-    ``max_groups`` whole groups of 4 ``block`` s spread over it (the streamed path's
-    reduction, without the baseline), as a :class:`~cablesvc.recording.Recording` (time from
-    the first tick, gaps between the groups) and a description: what ``cablesvc identify``
-    fits on for a long or fast recording. Memory is bounded by ``max_groups`` groups."""
+                      max_groups: int = MAX_GROUPS, chunk_ticks: int = 200_000,
+                      select: str = "spread", held_groups: Optional[int] = None) -> tuple[Any, dict[str, Any]]:
+    """The recording at ``path`` decimated to ``rate`` by block means and sampled by whole
+    groups of 4 ``block`` s, as a :class:`~cablesvc.recording.Recording` (time from the first
+    tick, gaps between the groups) and a description: what ``cablesvc identify`` fits on
+    for a long or fast recording (the streamed path's reduction, without the baseline).
+
+    ``select="spread"``: at most ``max_groups`` groups evenly spread over the recording
+    (stride doubling, one pass). ``select="excitation"`` (what ``cablesvc identify`` uses):
+    a first pass measures each cable's force variation per group and
+    :func:`select_groups` keeps at least ``max_groups`` groups, and as many more as it takes
+    for every cable to be excited in them (a calibration that moves one winch at a time);
+    a second pass keeps those. With ``held_groups``, a recording whose platform is held
+    still (position span < :data:`HELD_SPAN`: 002 Sec 4's calibration, every segment of it
+    a level of some winch) and that has no more groups than that is kept whole. Memory is
+    bounded by the groups kept."""
     from cablesvc.recording import Recording
     from cablesvc.recording.format import RecordingError
 
@@ -307,9 +430,24 @@ def reduced_recording(path: Any, robot: Robot, *, rate: float = ANALYSIS_RATE, b
         def __init__(self, msg: str):
             super().__init__(path, "inputs", msg)
 
+    if select not in ("spread", "excitation"):
+        raise ValueError(f"select must be 'spread' or 'excitation', not {select!r}")
     t_start = time.perf_counter()
     m = robot.geometry().n_cables
-    acc = BlockAccumulator(4.0 * block, max_groups)
+    extra: dict[str, Any] = {"selection": select}
+    keep = None
+    if select == "excitation":
+        score, span = group_excitation(_Decimator(path, m, rate, chunk_ticks, _Fail), 4.0 * block)
+        held = span < HELD_SPAN
+        if held and held_groups is not None and score.shape[0] <= held_groups:
+            chosen, needed = list(range(score.shape[0])), 0
+            extra["held_calibration"] = True
+        else:
+            chosen, needed = select_groups(score, max_groups)
+        keep = set(chosen)
+        extra["groups_to_cover_every_cable"] = int(needed)
+        extra["position_span_m"] = span
+    acc = BlockAccumulator(4.0 * block, max_groups, keep=keep)
     src = _Decimator(path, m, rate, chunk_ticks, _Fail)
     for dec in src:
         acc.add(dec)
@@ -322,5 +460,5 @@ def reduced_recording(path: Any, robot: Robot, *, rate: float = ANALYSIS_RATE, b
                     motor_length=kept["ml"], position=kept["pos"], orientation=kept["ori"], force=kept["y"],
                     temperature=temp)
     info = _reduction_info(src, acc, groups, int(n), block, max_groups, t_start)
-    return rec, {**info, "gaps": int(breaks[1:].sum())}
+    return rec, {**info, **extra, "gaps": int(breaks[1:].sum())}
 
