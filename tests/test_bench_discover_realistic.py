@@ -161,6 +161,10 @@ def test_ool_scoring():
     assert not ool_handled([f([2, 3])], [], [2, 6])          # a term on a cable the effect is not on
     assert not ool_handled([f([2]), f([6])], [], [2, 6])     # two terms
     assert not ool_handled([], [], [2])                      # nothing reported at all
+    from cablesvc.bench.discover import ool_no_wrong_term
+    assert ool_no_wrong_term([], [], [2])                    # ... is no wrong physics, in the looser count
+    assert ool_no_wrong_term([f([2])], [], [2, 6]) and not ool_no_wrong_term([f([2, 3])], [], [2, 6])
+    assert not ool_no_wrong_term([f([2]), f([6])], [], [2, 6])
 
 
 def test_ideal_mode_keeps_its_keys():
