@@ -189,7 +189,7 @@ def test_identify_sampling_keeps_every_winch_of_a_calibration_that_moves_one_at_
     assert info["groups_kept"] == 8 and info["groups_to_cover_every_cable"] == 8 and info["groups_seen"] == 8
     # the platform is held still (a calibration): kept whole when it has no more groups than
     # held_groups (the amplitude model's per-level fit needs every level), selected otherwise
-    assert info["position_span_m"] == 0.0 and "held_calibration" not in info
+    assert info["position_std_m"] == 0.0 and "held_calibration" not in info
     _, whole = reduced_recording(p, rob, max_groups=2, select="excitation", held_groups=8)
     assert whole["held_calibration"] and whole["groups_kept"] == 8
     _, over = reduced_recording(p, rob, max_groups=2, select="excitation", held_groups=7)

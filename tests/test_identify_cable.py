@@ -47,6 +47,17 @@ def test_segment_levels_finds_the_amplitude_levels(hold_rec):
     assert reversal_points(x, 0.5).tolist() == [3, 6, 10]
 
 
+def test_segment_levels_with_a_measured_pose_that_carries_micrometres_of_noise(hold_rec):
+    """5 um of noise on the elongation (a measured, not commanded, pose) made a reversal of
+    every wiggle, and `cablesvc identify` stopped with 'no amplitude level left to fit';
+    the threshold now rises above the noise and the same levels are found."""
+    d = cable_data(hold_rec, ROBOT, [1])
+    x = d.x[:, 0] + 5e-6 * np.random.default_rng(2).standard_normal(d.x.shape[0])
+    lv = segment_levels(x, d.t)
+    assert [round(v.amplitude * 1e4) for v in lv] == [5, 10, 15]
+    assert all(v.half_period == pytest.approx(0.5, abs=0.02) for v in lv)
+
+
 def test_reversal_amplitude_is_known_from_the_sample_that_confirms_the_turn():
     x = np.array([0, 1, 2, 3, 2, 1, 0, 1, 2, 2, 2, 1], float)
     ext, seen = reversal_points(x, 0.5, confirmed=True)

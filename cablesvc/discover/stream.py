@@ -326,16 +326,18 @@ def group_excitation(src: "_Decimator", group_s: float) -> tuple[np.ndarray, flo
     """(G, m) standard deviation [N] of the measured force of each cable within each group
     of ``group_s`` s of the decimated recording ``src`` (one pass; memory per group, not
     per tick; non-finite readings are left out, a group without any counts 0), and the
-    largest span of the platform position over the whole recording [m] (0 for a platform
-    held still: a calibration, 002 Sec 4)."""
+    largest standard deviation of a platform position coordinate over the whole recording
+    [m] (about 0 for a platform held still, a calibration (002 Sec 4), whatever noise a
+    measured pose carries; decimetres for a trajectory)."""
     n: dict[int, np.ndarray] = {}
     s1: dict[int, np.ndarray] = {}
     s2: dict[int, np.ndarray] = {}
-    lo = np.full(3, np.inf)
-    hi = np.full(3, -np.inf)
+    pn, p1, p2, p0 = 0, np.zeros(3), np.zeros(3), None
     for dec in src:
-        lo = np.minimum(lo, dec["pos"].min(axis=0)) if dec["pos"].size else lo
-        hi = np.maximum(hi, dec["pos"].max(axis=0)) if dec["pos"].size else hi
+        if dec["pos"].size:
+            p0 = dec["pos"][0] if p0 is None else p0          # shifted sums: no cancellation
+            dp = dec["pos"] - p0
+            pn, p1, p2 = pn + dp.shape[0], p1 + dp.sum(axis=0), p2 + (dp ** 2).sum(axis=0)
         g = np.floor(dec["t"] / group_s).astype(np.int64)
         y = dec["y"]
         ok = np.isfinite(y)
@@ -348,9 +350,9 @@ def group_excitation(src: "_Decimator", group_s: float) -> tuple[np.ndarray, flo
             n[k] += ok[sel].sum(axis=0)
             s1[k] += y0[sel].sum(axis=0)
             s2[k] += (y0[sel] ** 2).sum(axis=0)
-    span = float(np.max(hi - lo)) if np.all(np.isfinite(hi - lo)) else 0.0
+    pos_std = float(np.sqrt(np.max(np.maximum(p2 / pn - (p1 / pn) ** 2, 0.0)))) if pn else 0.0
     if not n:
-        return np.zeros((0, 0)), span
+        return np.zeros((0, 0)), pos_std
     G = max(n) + 1
     m = next(iter(n.values())).size
     out = np.zeros((G, m))
@@ -358,11 +360,12 @@ def group_excitation(src: "_Decimator", group_s: float) -> tuple[np.ndarray, flo
         cnt = np.maximum(n[k], 1.0)
         mean = s1[k] / cnt
         out[k] = np.where(n[k] > 1, np.sqrt(np.maximum(s2[k] / cnt - mean ** 2, 0.0)), 0.0)
-    return out, span
+    return out, pos_std
 
 
-#: the platform counts as held still (a calibration) when its position spans less [m]
-HELD_SPAN = 1e-4
+#: the platform counts as held still (a calibration) when no coordinate of its position
+#: varies by more than this standard deviation over the recording [m]
+HELD_SPAN = 1e-3
 
 
 #: a cable counts as covered by the groups kept when they hold a group with at least this
@@ -420,7 +423,7 @@ def reduced_recording(path: Any, robot: Robot, *, rate: float = ANALYSIS_RATE, b
     :func:`select_groups` keeps at least ``max_groups`` groups, and as many more as it takes
     for every cable to be excited in them (a calibration that moves one winch at a time);
     a second pass keeps those. With ``held_groups``, a recording whose platform is held
-    still (position span < :data:`HELD_SPAN`: 002 Sec 4's calibration, every segment of it
+    still (position std < :data:`HELD_SPAN`: 002 Sec 4's calibration, every segment of it
     a level of some winch) and that has no more groups than that is kept whole. Memory is
     bounded by the groups kept."""
     from cablesvc.recording import Recording
@@ -437,8 +440,8 @@ def reduced_recording(path: Any, robot: Robot, *, rate: float = ANALYSIS_RATE, b
     extra: dict[str, Any] = {"selection": select}
     keep = None
     if select == "excitation":
-        score, span = group_excitation(_Decimator(path, m, rate, chunk_ticks, _Fail), 4.0 * block)
-        held = span < HELD_SPAN
+        score, pos_std = group_excitation(_Decimator(path, m, rate, chunk_ticks, _Fail), 4.0 * block)
+        held = pos_std < HELD_SPAN
         if held and held_groups is not None and score.shape[0] <= held_groups:
             chosen, needed = list(range(score.shape[0])), 0
             extra["held_calibration"] = True
@@ -446,7 +449,7 @@ def reduced_recording(path: Any, robot: Robot, *, rate: float = ANALYSIS_RATE, b
             chosen, needed = select_groups(score, max_groups)
         keep = set(chosen)
         extra["groups_to_cover_every_cable"] = int(needed)
-        extra["position_span_m"] = span
+        extra["position_std_m"] = pos_std
     acc = BlockAccumulator(4.0 * block, max_groups, keep=keep)
     src = _Decimator(path, m, rate, chunk_ticks, _Fail)
     for dec in src:

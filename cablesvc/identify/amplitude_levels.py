@@ -62,11 +62,17 @@ def segment_levels(x: np.ndarray, t: np.ndarray, *, cable: int = 0, rel_tol: flo
     ``rel_tol`` and whose midpoints agree within ``rel_tol`` times the amplitude form a
     level; runs shorter than ``min_half_cycles`` (ramps between levels) are dropped.
     ``eps`` [m] is the reversal-detection threshold (default 0.1 % of the peak-to-peak
-    elongation, at least 1 nm)."""
+    elongation, at least 1 nm, and at least 10 x the noise of the elongation, estimated from
+    the median absolute second difference: a pose that is measured rather than commanded
+    carries micrometres of noise, which would otherwise make a reversal of every wiggle)."""
     x = np.asarray(x, dtype=float)
     t = np.asarray(t, dtype=float)
     if eps is None:
         eps = max(1e-9, 1e-3 * (float(np.ptp(x)) if x.size else 0.0))
+        if x.size > 10:
+            d2 = np.diff(x, 2)
+            sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
+            eps = max(eps, 10.0 * sigma)
     r = reversal_points(x, eps)
     if r.size < 2:
         return []
