@@ -233,7 +233,7 @@ def _with_dropouts(rec):
     pos = rec.position.copy()
     pos[700] = np.nan                           # one pose missing
     temp = rec.temperature.copy()
-    temp[50:60] = np.nan                        # the thermometer too
+    temp[50:60] = np.nan                        # the thermometer too (interpolated)
     return dataclasses.replace(rec, force=f, position=pos, temperature=temp)
 
 
@@ -241,19 +241,28 @@ def test_readings_that_drop_out_are_left_out_counted_and_named(tmp_path):
     """Ticks with a force, pose or length that is not finite (a dropout written as null)
     are left out, counted and named in the report; discovery on what is left names the
     same terms with the same parameters (it failed with 'SVD did not converge' before).
-    A temperature column with holes is left out as a column."""
+    A temperature with holes is interpolated in time there; missing on most ticks, the
+    column is left out."""
     rob = load_robot(ROBOT)
     rec = _sim(None, ["viscous:8000@3", "pulley:0.004@1"], 7, 12.0, 100)
     terms = library(["viscous", "pulley", "temperature"])
     a = discover(rec, rob, terms=terms, exact_baseline=True)
     b = discover(_with_dropouts(rec), rob, terms=terms, exact_baseline=True)
     dr = b.options["dropped"]
-    assert dr["ticks"] == 121 and dr["of"] == 1200 and dr["runs"] == 2 and dr["temperature_column_dropped"]
+    assert dr["ticks"] == 121 and dr["of"] == 1200 and dr["runs"] == 2 and not dr["temperature_column_dropped"]
+    assert dr["temperature_interpolated"] == 10
     assert dr["channels"]["force of cable 2"]["ticks"] == 120 and dr["channels"]["pose"]["ticks"] == 1
     assert dr["channels"]["force of cable 2"]["first_t"] == pytest.approx(3.0)
     text = "\n".join(b.summary())
     assert "left out 121 of 1200 ticks" in text and "force of cable 2 missing on 120 ticks" in text
-    assert b.signals.temperature is None and b.to_json()["dropped"]["ticks"] == 121
+    assert b.to_json()["dropped"]["ticks"] == 121 and np.all(np.isfinite(b.signals.temperature))
+    k = np.flatnonzero(np.isclose(b.signals.t, rec.t[55] - rec.t[0]))[0]
+    assert b.signals.temperature[k] == pytest.approx(np.interp(rec.t[55], rec.t[[49, 60]], rec.temperature[[49, 60]]))
+    sparse = _with_dropouts(rec)
+    sparse.temperature[::2] = np.nan                        # missing on half the ticks and more: left out
+    c = discover(sparse, rob, terms=terms, exact_baseline=True)
+    assert c.options["dropped"]["temperature_column_dropped"] and c.signals.temperature is None
+    assert "temperature column was left out" in "\n".join(c.summary())
     assert {f.term: f.cables for f in a.findings} == {f.term: f.cables for f in b.findings} \
         == {"viscous": [3], "pulley": [1]}
     fa = {f.term: f for f in a.findings}

@@ -401,8 +401,9 @@ def finite_ticks(rec: Any) -> tuple[Any, Optional[np.ndarray], Optional[dict[str
     out) and what was left out (``dropped``: ticks, runs, per channel the count and the
     first time, in the report and the JSON). The baseline runs across a gap as if the
     record were one, as on the streamed path; the noise floor skips the jumps. A
-    temperature column that is not finite on some ticks is dropped as a column (the
-    temperature term is then not tried), not the ticks."""
+    temperature missing on some ticks is interpolated there (:func:`fill_slow`), not a
+    reason to leave ticks out; missing on most, the column is left out (the temperature
+    term is then not tried)."""
     import dataclasses as _dc
 
     n = int(np.asarray(rec.t).shape[0])
@@ -421,8 +422,12 @@ def finite_ticks(rec: Any) -> tuple[Any, Optional[np.ndarray], Optional[dict[str
     for v in chans.values():
         ok &= v
     temp = rec.temperature
-    temp_dropped = temp is not None and not np.all(np.isfinite(np.asarray(temp, float)))
-    if ok.all() and not temp_dropped:
+    temp_filled = 0
+    temp_dropped = False
+    if temp is not None and not np.all(np.isfinite(np.asarray(temp, float))):
+        temp, temp_filled = fill_slow(np.asarray(rec.t, float), np.asarray(temp, float))
+        temp_dropped = temp is None
+    if ok.all() and not temp_dropped and not temp_filled:
         return rec, None, None
     t = np.asarray(rec.t, float)
     per = {k: {"ticks": int((~v).sum()), "first_t": float(t[np.flatnonzero(~v)[0]] - t[np.isfinite(t)][0])
@@ -431,17 +436,36 @@ def finite_ticks(rec: Any) -> tuple[Any, Optional[np.ndarray], Optional[dict[str
     keep = np.flatnonzero(ok)
     runs = int(np.count_nonzero(np.diff(np.r_[1, ok.astype(np.int8), 1]) == -1))
     dropped = {"ticks": int(n - keep.size), "of": n, "runs": runs, "channels": per,
-               "temperature_column_dropped": bool(temp_dropped)}
+               "temperature_column_dropped": bool(temp_dropped), "temperature_interpolated": int(temp_filled)}
     def cut(a: Any) -> Any:
         return None if a is None else np.asarray(a)[keep]
     out = _dc.replace(rec, t=t[keep], seq=np.asarray(rec.seq)[keep], motor_length=ml[keep],
                       position=cut(rec.position), orientation=cut(rec.orientation), force=cut(rec.force),
-                      temperature=None if temp_dropped else cut(temp))
+                      temperature=cut(temp))
     breaks = np.zeros(keep.size, bool)
     if keep.size:
         breaks[1:] = np.diff(keep) > 1
         breaks[0] = True
     return out, breaks, dropped
+
+
+#: a temperature column with at least this share of finite readings has its holes filled
+#: by linear interpolation in time (it changes over minutes); with fewer it is left out
+TEMPERATURE_MIN_FINITE = 0.5
+
+
+def fill_slow(t: np.ndarray, v: np.ndarray) -> tuple[Optional[np.ndarray], int]:
+    """A slow channel (the temperature) with its non-finite readings filled by linear
+    interpolation in time between the finite ones (held at the ends): ``(filled, count)``,
+    or ``(None, 0)`` when fewer than :data:`TEMPERATURE_MIN_FINITE` of them are finite."""
+    ok = np.isfinite(v) & np.isfinite(t)
+    if ok.mean() < TEMPERATURE_MIN_FINITE or ok.sum() < 2:
+        return None, 0
+    out = v.copy()
+    fin = np.isfinite(t)
+    tt = np.where(fin, t, np.interp(np.arange(t.size), np.flatnonzero(fin), t[fin]))
+    out[~ok] = np.interp(tt[~ok], tt[ok], v[ok])
+    return out, int((~ok).sum())
 
 
 def describe_dropped(dr: dict[str, Any]) -> str:
@@ -453,8 +477,12 @@ def describe_dropped(dr: dict[str, Any]) -> str:
     line = (f"left out {dr['ticks']} of {dr['of']} ticks in {dr['runs']} gap(s) with a reading missing or not "
             f"finite: " + "; ".join(parts) if dr.get("ticks") else "")
     if dr.get("temperature_column_dropped"):
-        line = (line + "; " if line else "") + ("the temperature is not finite on some ticks: the temperature "
-                                                "column was left out (the temperature term is not tried)")
+        line = (line + "; " if line else "") + ("the temperature is missing on more than half of the ticks: the "
+                                                "temperature column was left out (the temperature term is not "
+                                                "tried)")
+    elif dr.get("temperature_interpolated"):
+        line = (line + "; " if line else "") + (f"the temperature was missing on {dr['temperature_interpolated']} "
+                                                f"ticks and is interpolated in time there (it changes over minutes)")
     return line
 
 

@@ -267,7 +267,10 @@ def read_reduced(path: Any, robot: Robot, params: ModelParams, *, rate: float = 
     if not kept or kept["t"].size < 200:
         raise DiscoveryError(f"the recording is too short for a held-out split "
                              f"({0 if not kept else kept['t'].size} analysis ticks, need >= 200)")
-    temp = kept["T"] if has_temp and np.all(np.isfinite(kept["T"])) else None
+    temp = None
+    if has_temp:
+        from cablesvc.discover.pipeline import fill_slow
+        temp, _ = fill_slow(kept["t"], kept["T"]) if not np.all(np.isfinite(kept["T"])) else (kept["T"], 0)
     s = Signals(t=kept["t"], dt=float(raw_dt * D), y=kept["y"], f0=kept["f0"], x=kept["x"], v=kept["v"],
                 v_slide=kept["v_slide"], wrap=kept["wrap"], free_length=kept["free_length"], temperature=temp,
                 ea=np.asarray(geom.ea, float), has_pulley=np.asarray(geom.has_pulley, bool),
