@@ -45,7 +45,8 @@ STREAM_MIN_TICKS = 20_000
 #: a platform held still (a 002 Sec 4 calibration) with up to this many 10 s groups is kept
 #: whole for the amplitude model, which is fitted per amplitude level (002 Sec 3) and needs
 #: every level of every cable; that fit costs seconds (4.3 s on the realistic bench's
-#: 34 648-tick calibration). Other recordings, and the swarm-fitted models, keep
+#: 34 648-tick calibration), but the identification holds some 16 KB per tick (2.25 GB on
+#: 138 592 ticks), so a longer calibration is sampled as below. Other recordings, and the swarm-fitted models, keep
 #: --max-groups groups, more where it takes more for every cable to be excited in them
 HELD_GROUPS_AMPLITUDE = 48
 
