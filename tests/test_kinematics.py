@@ -593,3 +593,24 @@ def test_fk_reports_residual_for_inconsistent_lengths():
     res = ForwardKinematics(IPANEMA).solve(lengths, pos, quat)
     assert 1e-4 < res.residual_rms[0] < 0.01
     assert np.all(np.isfinite(res.position))
+
+
+def test_a_long_batch_runs_in_pieces_with_the_results_of_one(monkeypatch):
+    """inverse_kinematics on more poses than IK_CHUNK solves them piece by piece (the
+    solver's work buffers took ~15 KB per pose: 530 MB for a 35 000-tick calibration) and
+    returns every field as one batch would, the last, shorter piece included."""
+    from cablesvc.kinematics import ik as K
+    rng = np.random.default_rng(5)
+    n = 2 * 64 + 17
+    p = rng.normal(0.0, 0.3, (n, 3))
+    q = np.c_[rng.normal(0.0, 0.05, (n, 3)), np.ones(n)]
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    whole = K.InverseKinematics(IPANEMA, n)(p, q).copy()
+    monkeypatch.setattr(K, "IK_CHUNK", 64)
+    pieces = K.inverse_kinematics(IPANEMA, p, q)
+    for k in K._STATE_FIELDS:
+        a, b = getattr(pieces, k), getattr(whole, k)
+        assert a.shape == b.shape, k
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12, err_msg=k)
+    one = K.inverse_kinematics(IPANEMA, p[-1], q[-1])             # the last pose, alone
+    np.testing.assert_allclose(pieces.length[-1], one.length[0], rtol=1e-12, atol=1e-12)

@@ -44,11 +44,10 @@ examples:
 STREAM_MIN_TICKS = 20_000
 #: a platform held still (a 002 Sec 4 calibration) with up to this many 10 s groups is kept
 #: whole for the amplitude model, which is fitted per amplitude level (002 Sec 3) and needs
-#: every level of every cable; that fit costs seconds (4.3 s on the realistic bench's
-#: 34 648-tick calibration), but the identification holds some 16 KB per tick (2.25 GB on
-#: 138 592 ticks), so a longer calibration is sampled as below. Other recordings, and the swarm-fitted models, keep
+#: every level of every cable; that fit costs seconds (2.7 s and 285 MB on the realistic
+#: bench's 34 648-tick calibration, 5 s and 432 MB on four times that): an hour at 100 Hz. Other recordings, and the swarm-fitted models, keep
 #: --max-groups groups, more where it takes more for every cable to be excited in them
-HELD_GROUPS_AMPLITUDE = 48
+HELD_GROUPS_AMPLITUDE = 360
 
 
 def _parse_cables(text: str | None) -> list[int] | None:
@@ -233,7 +232,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                          groups="10 s groups kept, more where it takes more for every cable to be excited "
                                 "in them (default 3: the swarm and the least-squares refinement cost 1-4 "
                                 "minutes on 6000 ticks); --model amplitude keeps a calibration (platform held "
-                                "still) of up to 48 groups whole, since it is fitted per amplitude level")
+                                "still) of up to 360 groups (an hour) whole, since it is fitted per amplitude level")
     p.add_argument("--json", action="store_true",
                    help="print the fleet JSON (one row per recording and the fleet summary; runs as a fleet)")
     from cablesvc.batch.cli import add_fleet_arguments

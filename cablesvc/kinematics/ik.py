@@ -640,6 +640,10 @@ def wrench_residual(
     return out
 
 
+#: poses per piece of :func:`inverse_kinematics` on a long batch
+IK_CHUNK = 4096
+
+
 def inverse_kinematics(
     geom: RobotGeometry, position: np.ndarray, orientation: np.ndarray
 ) -> IKState:
@@ -649,5 +653,23 @@ def inverse_kinematics(
     :class:`InverseKinematics` in the control loop."""
     position = np.atleast_2d(np.asarray(position, dtype=np.float64))
     orientation = np.atleast_2d(np.asarray(orientation, dtype=np.float64))
-    ik = InverseKinematics(geom, position.shape[0])
-    return ik(position, orientation).copy()
+    n = position.shape[0]
+    if n <= IK_CHUNK:
+        ik = InverseKinematics(geom, n)
+        return ik(position, orientation).copy()
+    # a long recording: the solver's work buffers take some 15 KB per pose (530 MB for the
+    # 35 000 poses of a calibration), so it runs on pieces and only the results are kept
+    out: dict[str, np.ndarray] = {}
+    solvers: dict[int, InverseKinematics] = {}
+    for a in range(0, n, IK_CHUNK):
+        b = min(n, a + IK_CHUNK)
+        ik = solvers.get(b - a)
+        if ik is None:
+            ik = solvers[b - a] = InverseKinematics(geom, b - a)
+        st = ik(position[a:b], orientation[a:b])
+        for k in _STATE_FIELDS:
+            v = getattr(st, k)
+            if k not in out:
+                out[k] = np.empty((n,) + v.shape[1:], dtype=v.dtype)
+            out[k][a:b] = v
+    return IKState(**out)
