@@ -123,3 +123,22 @@ def test_simulate_out_in_missing_directory(tmp_path):
     r = cli("simulate", "--duration", "0.1", "--out", str(out), timeout=60)
     one_line(r, 2, str(out))
     assert not out.parent.exists()
+
+
+def test_identify_and_discover_take_the_robot_the_recording_names_and_say_when_there_is_none(tmp_path):
+    """Without --robot, both commands use the robot of the recording's metadata; a CSV
+    without a '# robot:' line is one line naming the file and the robots there are (it
+    was 'robot file : 1 problem / no robot named ''' from identify, and discover asked for
+    --robot even when the recording named it)."""
+    from cablesvc.recording import write_recording
+    from cablesvc.simulate import simulate_recording
+    rec = simulate_recording("planar4", "trajectory", duration=10.0, rate=100.0, seed=1)
+    named = tmp_path / "named.csv"
+    write_recording(named, rec)
+    bare = tmp_path / "bare.csv"
+    bare.write_text("".join(ln for ln in named.read_text().splitlines(keepends=True) if not ln.startswith("# robot")))
+    for cmd in ("identify", "discover"):
+        one_line(cli(cmd, str(bare)), 1, str(bare), "names no robot", "--robot", "planar4")
+    r = cli("discover", str(named), "--json")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert '"robot": "planar4"' in r.stdout

@@ -46,8 +46,22 @@ def cmd_discover(args: argparse.Namespace) -> int:
     if specs and fleet_requested(args, specs):
         return _cmd_fleet(args, specs)
     args.recording = specs[0] if len(specs) == 1 else None
-    if not args.recording or not args.robot:
-        raise ConfigError("a recording and --robot are needed (or --boucwen)")
+    if not args.recording:
+        raise ConfigError("a recording is needed (or --boucwen)")
+    if not args.robot:                  # the robot the recording names (its metadata)
+        from pathlib import Path
+
+        from cablesvc.config.robot import available_robots
+        from cablesvc.recording import read_metadata
+        if not Path(args.recording).exists():
+            raise ConfigError(f"{args.recording}: recording not found")
+        try:
+            args.robot = read_metadata(args.recording).get("robot", "")
+        except (RecordingError, OSError, ValueError) as e:
+            raise DiscoveryError(f"cannot read the recording {args.recording}: {e}") from None
+        if not args.robot:
+            raise ConfigError(f"{args.recording}: the recording names no robot (no 'robot' metadata): give --robot "
+                              f"NAME or a .toml path (available: {', '.join(available_robots())})")
 
     if args.calib and args.params:
         raise ConfigError("give either --params or --calib (the baseline is identified from --calib)")
@@ -150,8 +164,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                               description=__doc__.split("\n\n")[0] + " See docs/discovery.md.")
     p.add_argument("recording", nargs="*", help="recording with measured forces (.mcap or .csv); several paths, "
                    "a directory or a glob run as a fleet on Dask (docs/cluster.md)")
-    p.add_argument("--robot", default=None, help="robot name or .toml file (fleet: default the one each "
-                   "recording names)")
+    p.add_argument("--robot", default=None, help="robot name or .toml file (default: the one the recording "
+                   "names; a fleet: the one each recording names)")
     p.add_argument("--boucwen", action="store_true",
                    help="run discovery on the Bouc-Wen benchmark oscillator instead (linear start on train.h5)")
     p.add_argument("--data", default=None, help="--boucwen: benchmark data directory (default: "

@@ -50,6 +50,16 @@ STREAM_MIN_TICKS = 20_000
 HELD_GROUPS_AMPLITUDE = 360
 
 
+def _robot_name(args: argparse.Namespace, from_file: str | None, path: Path) -> str:
+    """--robot, or the robot the recording names; neither: a clear error, not a lookup of ''."""
+    name = args.robot or from_file
+    if not name:
+        from cablesvc.config.robot import available_robots
+        raise ConfigError(f"{path}: the recording names no robot (no 'robot' metadata): give --robot NAME or a "
+                          f".toml path (available: {', '.join(available_robots())})")
+    return name
+
+
 def _parse_cables(text: str | None) -> list[int] | None:
     if text is None or text.strip() == "":
         return None
@@ -97,7 +107,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
             raise ConfigError(f"--max-groups {args.max_groups}: must be >= 1")
         if wants_streaming(args, rec_path, 2.5, min_ticks=STREAM_MIN_TICKS):
             file_robot = read_metadata(rec_path).get("robot", "")
-            robot = load_robot(args.robot or file_robot)           # RobotFileError: one line as it is
+            robot = load_robot(_robot_name(args, file_robot, rec_path))   # RobotFileError: one line as it is
             rec, reduction = reduced_recording(rec_path, robot, rate=args.analysis_rate,
                                                max_groups=args.max_groups, select="excitation",
                                                held_groups=HELD_GROUPS_AMPLITUDE if args.model == "amplitude"
@@ -109,7 +119,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
         raise IdentifyError(f"cannot read the recording: {e}") from None
     except (OSError, ValueError) as e:          # an unreadable file: name it
         raise IdentifyError(f"cannot read the recording {rec_path}: {e}") from None
-    robot = load_robot(args.robot or rec.robot)
+    robot = load_robot(_robot_name(args, rec.robot, rec_path))
     if args.robot and rec.robot and rec.robot != robot.name:
         con.print(f"[yellow]note:[/] the recording says robot {rec.robot!r}, using {robot.name!r} as asked")
     if args.out and Path(args.out).suffix.lower() != ".toml":

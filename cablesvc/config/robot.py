@@ -48,6 +48,7 @@ __all__ = [
     "Robot",
     "RobotFileError",
     "RobotGeometry",
+    "available_robots",
     "load_robot",
     "robot_search_path",
 ]
@@ -462,6 +463,11 @@ def _available_names(dirs: list[Path]) -> list[str]:
     for d in dirs:
         names.update(p.stem for p in robot_files(d))
     return sorted(names)
+
+
+def available_robots() -> list[str]:
+    """Names of the robot files on the search path (:func:`robot_search_path`)."""
+    return _available_names(robot_search_path())
 
 
 def _find(name_or_path: str | os.PathLike[str]) -> Path:
