@@ -51,17 +51,15 @@ def cmd_discover(args: argparse.Namespace) -> int:
     if not args.robot:                  # the robot the recording names (its metadata)
         from pathlib import Path
 
-        from cablesvc.config.robot import available_robots
+        from cablesvc.cli.paths import recording_robot
         from cablesvc.recording import read_metadata
         if not Path(args.recording).exists():
             raise ConfigError(f"{args.recording}: recording not found")
         try:
-            args.robot = read_metadata(args.recording).get("robot", "")
+            named = read_metadata(args.recording).get("robot", "")
         except (RecordingError, OSError, ValueError) as e:
             raise DiscoveryError(f"cannot read the recording {args.recording}: {e}") from None
-        if not args.robot:
-            raise ConfigError(f"{args.recording}: the recording names no robot (no 'robot' metadata): give --robot "
-                              f"NAME or a .toml path (available: {', '.join(available_robots())})")
+        args.robot = recording_robot(None, named, args.recording)
 
     if args.calib and args.params:
         raise ConfigError("give either --params or --calib (the baseline is identified from --calib)")

@@ -17,7 +17,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from cablesvc.cli.paths import dir_problem, file_problem
+from cablesvc.cli.paths import dir_problem, file_problem, recording_robot
 from cablesvc.errors import CablesvcError, ConfigError, IdentifyError
 
 __all__ = ["add_parser", "cmd_identify"]
@@ -45,19 +45,10 @@ STREAM_MIN_TICKS = 20_000
 #: a platform held still (a 002 Sec 4 calibration) with up to this many 10 s groups is kept
 #: whole for the amplitude model, which is fitted per amplitude level (002 Sec 3) and needs
 #: every level of every cable; that fit costs seconds (2.7 s and 285 MB on the realistic
-#: bench's 34 648-tick calibration, 5 s and 432 MB on four times that): an hour at 100 Hz. Other recordings, and the swarm-fitted models, keep
-#: --max-groups groups, more where it takes more for every cable to be excited in them
+#: bench's 34 648-tick calibration, 5 s and 432 MB on four times that): an hour at 100 Hz.
+#: Other recordings, and the swarm-fitted models, keep --max-groups groups, more where it
+#: takes more for every cable to be excited in them
 HELD_GROUPS_AMPLITUDE = 360
-
-
-def _robot_name(args: argparse.Namespace, from_file: str | None, path: Path) -> str:
-    """--robot, or the robot the recording names; neither: a clear error, not a lookup of ''."""
-    name = args.robot or from_file
-    if not name:
-        from cablesvc.config.robot import available_robots
-        raise ConfigError(f"{path}: the recording names no robot (no 'robot' metadata): give --robot NAME or a "
-                          f".toml path (available: {', '.join(available_robots())})")
-    return name
 
 
 def _parse_cables(text: str | None) -> list[int] | None:
@@ -107,7 +98,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
             raise ConfigError(f"--max-groups {args.max_groups}: must be >= 1")
         if wants_streaming(args, rec_path, 2.5, min_ticks=STREAM_MIN_TICKS):
             file_robot = read_metadata(rec_path).get("robot", "")
-            robot = load_robot(_robot_name(args, file_robot, rec_path))   # RobotFileError: one line as it is
+            robot = load_robot(recording_robot(args.robot, file_robot, rec_path))   # RobotFileError: one line as it is
             rec, reduction = reduced_recording(rec_path, robot, rate=args.analysis_rate,
                                                max_groups=args.max_groups, select="excitation",
                                                held_groups=HELD_GROUPS_AMPLITUDE if args.model == "amplitude"
@@ -119,7 +110,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
         raise IdentifyError(f"cannot read the recording: {e}") from None
     except (OSError, ValueError) as e:          # an unreadable file: name it
         raise IdentifyError(f"cannot read the recording {rec_path}: {e}") from None
-    robot = load_robot(_robot_name(args, rec.robot, rec_path))
+    robot = load_robot(recording_robot(args.robot, rec.robot, rec_path))
     if args.robot and rec.robot and rec.robot != robot.name:
         con.print(f"[yellow]note:[/] the recording says robot {rec.robot!r}, using {robot.name!r} as asked")
     if args.out and Path(args.out).suffix.lower() != ".toml":

@@ -1,12 +1,13 @@
-"""Checks of output paths, made before a command spends minutes computing what it would
-write there: each returns why the path cannot be used, in words, or None."""
+"""Checks of the paths a command is given, made before it spends minutes computing: each
+output check returns why the path cannot be used, in words, or None; :func:`recording_robot`
+names the robot of an input recording or says why there is none."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
-__all__ = ["dir_problem", "file_problem"]
+__all__ = ["dir_problem", "file_problem", "recording_robot"]
 
 
 def file_problem(path: str | os.PathLike[str]) -> str | None:
@@ -37,3 +38,16 @@ def dir_problem(path: str | os.PathLike[str]) -> str | None:
     if not os.access(anc, os.W_OK):
         return f"{anc} is not writable"
     return None
+
+
+def recording_robot(given: str | None, named: str | None, path: str | os.PathLike[str]) -> str:
+    """The robot to use for the recording at ``path``: ``given`` (--robot), else the one its
+    metadata ``named``; neither is a :class:`~cablesvc.errors.ConfigError` naming the file
+    and the robots available (rather than a lookup of '')."""
+    name = given or named
+    if not name:
+        from cablesvc.config.robot import available_robots
+        from cablesvc.errors import ConfigError
+        raise ConfigError(f"{path}: the recording names no robot (no 'robot' metadata): give --robot NAME or a "
+                          f".toml path (available: {', '.join(available_robots())})")
+    return name

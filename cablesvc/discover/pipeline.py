@@ -378,10 +378,12 @@ def _corr(a: np.ndarray, b: np.ndarray, centred: bool = True) -> float:
     return float(a @ b / d) if d > 0 else 0.0
 
 
-def _since(rec: Any, s: Signals, since: float) -> tuple[Any, Signals]:
-    """The recording and its signals from ``since`` s after the recording's start on; the
-    baseline and the amplitude were computed over the whole recording, so their hysteresis
-    state at the cut is the one the live kernel has there."""
+def _since(rec: Any, s: Signals, since: float,
+           breaks: Optional[np.ndarray] = None) -> tuple[Any, Signals, Optional[np.ndarray]]:
+    """The recording, its signals and its ``breaks`` (:func:`finite_ticks`; the first tick
+    kept starts a run) from ``since`` s after the recording's start on; the baseline and the
+    amplitude were computed over the whole recording, so their hysteresis state at the cut
+    is the one the live kernel has there."""
     import copy as _copy
 
     k0 = int(np.searchsorted(s.t, since - 1e-9))
@@ -391,7 +393,10 @@ def _since(rec: Any, s: Signals, since: float) -> tuple[Any, Signals]:
     for k in ("t", "y", "f0", "x", "v", "v_slide", "wrap", "free_length", "amplitude", "train"):
         setattr(s2, k, getattr(s, k)[k0:])
     s2.temperature = None if s.temperature is None else s.temperature[k0:]
-    return rec.slice(k0), s2
+    if breaks is not None:
+        breaks = breaks[k0:].copy()
+        breaks[0] = True
+    return rec.slice(k0), s2, breaks
 
 
 def finite_ticks(rec: Any) -> tuple[Any, Optional[np.ndarray], Optional[dict[str, Any]]]:
@@ -515,11 +520,7 @@ def discover(recording: Any, robot: Union[Robot, str, "os.PathLike[str]"],
     rec, breaks, dropped = finite_ticks(rec)
     s = build_signals(rec, rob, base)
     if since is not None and since > 0:
-        k0 = int(np.searchsorted(s.t, since - 1e-9))
-        rec, s = _since(rec, s, float(since))
-        breaks = None if breaks is None else breaks[k0:].copy()
-        if breaks is not None and breaks.size:
-            breaks[0] = True
+        rec, s, breaks = _since(rec, s, float(since), breaks)
     d = discover_signals(rec, rob, base, s, terms=terms, selector=selector, block=block,
                          exact_baseline=exact_baseline, t_origin=float(rec.t[0]), breaks=breaks)
     if dropped:

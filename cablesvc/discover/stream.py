@@ -90,16 +90,11 @@ class BlockAccumulator:
         if g.size:
             self.seen = max(self.seen, int(g[-1]))
         for gi in np.unique(g):
-            if self.keep is not None:
-                if int(gi) in self.keep:
-                    sel = g == gi
-                    self.groups.setdefault(int(gi), []).append({k: v[sel] for k, v in cols.items()})
-                continue
-            if gi % self.stride:
+            if (int(gi) not in self.keep) if self.keep is not None else gi % self.stride:
                 continue
             sel = g == gi
             self.groups.setdefault(int(gi), []).append({k: v[sel] for k, v in cols.items()})
-            while len(self.groups) > self.max_groups:
+            while self.keep is None and len(self.groups) > self.max_groups:
                 self.stride *= 2
                 self.groups = {k: v for k, v in self.groups.items() if k % self.stride == 0}
 
