@@ -269,3 +269,50 @@ def test_joint_fit_selects_forms_and_keeps_held_out_out(hold_rec, amp_truth):
     tv = effective_values(amp_truth, 4, 1e-3)
     k1 = np.array([af.functions[c]["K1"](1e-3) for c in range(2)])
     assert np.all(np.abs(k1 - tv["K1"][[0, 2]]) / tv["K1"][[0, 2]] < 0.01)
+
+
+def test_backbone_curvature_enters_only_when_the_data_show_it(hold_rec, amp_truth):
+    """K2 and K3 start absent (held at 0) and enter through the same score test as any
+    further degree: a calibration of a cable without curvature gives none (a K3 fitted on
+    +-1.5 mm and extrapolated to the centimetres of a trajectory is hundreds of newtons of
+    nothing), one with it gives it back (the existing recovery test holds)."""
+    import dataclasses
+    from cablesvc.identify.amplitude_fit import fit_amplitude_model
+    flat_tables = dict(amp_truth.tables)
+    n = len(flat_tables["amplitudes"])
+    m = len(flat_tables["K1"])
+    flat_tables["K2"] = [[0.0] * n for _ in range(m)]
+    flat_tables["K3"] = [[0.0] * n for _ in range(m)]
+    flat = dataclasses.replace(amp_truth, tables=flat_tables)
+    rec = simulate_recording(ROBOT, "hold-sine", truth=TruthConfig(base=flat, noise_std=0.1), seed=3,
+                             amplitudes=[5e-4, 1e-3, 1.5e-3], **HOLD)
+    d = cable_data(rec, ROBOT, [0, 2])
+    af = fit_amplitude_model(d.t, d.x, d.force, cables=d.cables)
+    for c in range(2):
+        fn = af.functions[c]
+        assert fn["K2"].degree == -1 and fn["K3"].degree == -1, {k: fn[k].degree for k in fn}
+        assert fn["K3"](2e-2) == 0.0 and fn["K2"].coef.size == 0
+    # the same cables with curvature: both enter
+    d2 = cable_data(hold_rec, ROBOT, [0, 2])
+    af2 = fit_amplitude_model(d2.t, d2.x, d2.force, cables=d2.cables)
+    assert all(af2.functions[c][k].degree >= 0 for c in range(2) for k in ("K2", "K3"))
+
+
+def test_residual_inflation_counts_serial_correlation():
+    from cablesvc.identify.amplitude_joint import residual_inflation
+    rng = np.random.default_rng(0)
+    white = [rng.standard_normal(5000) for _ in range(3)]
+    assert 0.95 < residual_inflation(white) < 1.06
+    rho = 0.9
+    pieces = []
+    for _ in range(3):
+        e = rng.standard_normal(20000)
+        x = np.empty_like(e)
+        x[0] = e[0]
+        for i in range(1, e.size):
+            x[i] = rho * x[i - 1] + e[i]
+        pieces.append(x)
+    assert abs(residual_inflation(pieces) / ((1 + rho) / (1 - rho)) - 1.0) < 0.1
+    # anti-correlated residuals keep the plain test (rho floored at 0)
+    alt = [np.tile([1.0, -1.0], 1000)]
+    assert residual_inflation(alt) == 1.0
