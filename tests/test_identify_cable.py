@@ -163,6 +163,12 @@ def test_cli_writes_loadable_params_and_report(tmp_path, hold_rec):
     model = p.build(4, 1)                                    # what cablesvc run --params builds
     assert model.shape == (1, 4)
     assert p.identification["cables"] == [1]
+    # the elongations the backbone was fitted on (levels up to 1.5 mm about x_center) are
+    # written for the fitted cable; the others keep no limit
+    lo, hi = np.asarray(p.params["xi_lo"]), np.asarray(p.params["xi_hi"])
+    assert -1.6e-3 < lo[1] < -1.4e-3 and 1.4e-3 < hi[1] < 1.6e-3, (lo, hi)
+    assert np.all(lo[[0, 2, 3]] == -1.0) and np.all(hi[[0, 2, 3]] == 1.0)
+    assert np.allclose(model.params["xi_lo"][0], lo) and np.allclose(model.params["xi_hi"][0], hi)
     text = (rep / "report.md").read_text()
     pngs = sorted(f.name for f in rep.glob("*.png"))
     assert pngs == ["convergence.png", "loops_cable1.png", "residuals.png"]

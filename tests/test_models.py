@@ -412,10 +412,17 @@ def _all_models(shape):
     ]
 
 
-@pytest.mark.parametrize("idx", range(6))
+def _bounded_amplitude(shape):
+    """The amplitude model with the identified elongation range set (its backbone continues
+    along the tangent outside it): the extra branch of the step."""
+    return AmplitudeDependent(shape, amplitudes=[1e-4, 1e-3], K0=60, K1=[1e4, 2e4], K2=3e4, K3=-2e7,
+                              S_a=[1e-4, 1e-3], alpha=0.4, xi_lo=-1.5e-3, xi_hi=1.5e-3)
+
+
+@pytest.mark.parametrize("idx", range(7))
 def test_step_allocates_nothing(idx):
     shape = (1, 8)
-    m = _all_models(shape)[idx]
+    m = (_all_models(shape) + [_bounded_amplitude(shape)])[idx]
     rng = np.random.default_rng(1)
     xs = rng.normal(3e-3, 1e-3, (2000,) + shape)
     l0 = np.full(shape, 9.0)
@@ -443,3 +450,35 @@ def test_registry_and_parameter_errors():
         BoucWen()
     with pytest.raises(ModelParameterError, match="amplitudes"):
         AmplitudeDependent(amplitudes=[1e-3, 1e-4], K0=0, K1=1)
+
+
+def test_backbone_continues_along_its_tangent_outside_the_identified_range():
+    """Inside [xi_lo, xi_hi] the backbone is eq 8's polynomial bit for bit; outside it is
+    the tangent at the edge (value and stiffness continuous, no curvature), so a cubic
+    fitted on +-1.5 mm is not extrapolated to centimetres."""
+    from cablesvc.models.amplitude import backbone
+    rng = np.random.default_rng(4)
+    K = [np.full(400, v) for v in (60.0, 1.7e4, rng.uniform(-1e5, 1e5), rng.uniform(-1e8, 1e8))]
+    xi = np.linspace(-0.02, 0.02, 400)
+    lo, hi = -1.5e-3, 1.2e-3
+    free = backbone(xi, *K)
+    held = backbone(xi, *K, lo=np.full(400, lo), hi=np.full(400, hi))
+    inside = (xi >= lo) & (xi <= hi)
+    assert np.array_equal(free[inside], held[inside])
+    K0, K1, K2, K3 = (k[0] for k in K)
+    P = lambda z: K0 + K1 * z + K2 * z ** 2 + K3 * z ** 3
+    dP = lambda z: K1 + 2 * K2 * z + 3 * K3 * z ** 2
+    for edge, side in ((hi, xi > hi), (lo, xi < lo)):
+        want = P(edge) + dP(edge) * (xi[side] - edge)
+        assert np.allclose(held[side], want, rtol=1e-12, atol=1e-9)
+    # the model reads the limits from its parameters, in the step and in backbone_force alike
+    m = AmplitudeDependent((1, 1), amplitudes=[1e-3], K0=60.0, K1=1.7e4, K2=K2, K3=K3, S_a=0.0, alpha=0.4,
+                           xi_lo=lo, xi_hi=hi)
+    x = xi[:, None]
+    bf = m.backbone_force(x, 1e-3, interpolation="nearest")[:, 0]
+    assert np.allclose(bf, held, rtol=1e-12, atol=1e-9)
+    st = m.create_state(x[0])
+    out = np.array([m.step(st, np.array([[v]]), 1e-3)[0, 0] for v in xi])
+    assert np.allclose(out, held, rtol=1e-12, atol=1e-9)      # S_a = 0: the backbone alone
+    with pytest.raises(ModelParameterError, match="xi_lo must be < xi_hi"):
+        AmplitudeDependent((1, 1), amplitudes=[1e-3], K0=60.0, K1=1.7e4, xi_lo=1e-3, xi_hi=-1e-3)

@@ -101,6 +101,10 @@ class AmplitudeFit:
     x: np.ndarray | None = None
     force: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
+    #: (m_fit, 2) [m]: the smallest and largest xi = x - x_center of the fitted samples, per
+    #: cable: the backbone's polynomial holds there and continues along its tangent outside
+    #: (:func:`cablesvc.models.amplitude.backbone`)
+    xi_range: np.ndarray | None = None
 
     def level_table(self, cable_col: int) -> dict[str, np.ndarray]:
         """Per-level fitted values and standard errors of one cable column:
@@ -197,6 +201,8 @@ def fit_amplitude_model(t: np.ndarray, x: np.ndarray, force: np.ndarray, *, cabl
             tables[k][c] = functions[c][k](grid)
         tables["S_a"][c] = np.maximum(tables["S_a"][c], 0.0)
         tables["alpha"][c] = np.clip(tables["alpha"][c], 0.0, ALPHA_MAX)
+    xi_range = np.array([[min(float(f.data[c].xi.min()) for f in fits), max(float(f.data[c].xi.max()) for f in fits)]
+                         for c in range(m)])
     return AmplitudeFit(cables=cables, levels=lv_per_cable, fits=fits, held_out=held, functions=functions,
                         x_center=xc, table_amplitudes=grid, tables=tables, joint=joint, selection=logs, t=t, x=x,
-                        force=force)
+                        force=force, xi_range=xi_range)

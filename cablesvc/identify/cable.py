@@ -66,7 +66,7 @@ from cablesvc.identify.pso import normalized_mse, pso, pso_lockstep
 from cablesvc.identify.result import IdentifyResult
 from cablesvc.kinematics import inverse_kinematics
 from cablesvc.models import MODELS
-from cablesvc.models.amplitude import TABLE_COLUMNS
+from cablesvc.models.amplitude import TABLE_COLUMNS, XI_UNBOUNDED
 from cablesvc.models.space import FitStats, Space
 
 __all__ = ["CableData", "CableFit", "IdentifyError", "cable_data", "identify_cable", "MODEL_CHOICES",
@@ -531,13 +531,18 @@ def amplitude_params(af: Any, rob: Robot, data: CableData, seed: Any) -> ModelPa
         tables[k] = rows.tolist()
     xc = np.zeros(m)
     xc[data.cables] = af.x_center
+    # the elongations the backbone was fitted on: beyond them it continues along its tangent
+    lo, hi = np.full(m, -XI_UNBOUNDED), np.full(m, XI_UNBOUNDED)
+    if af.xi_range is not None:
+        lo[data.cables], hi[data.cables] = af.xi_range[:, 0], af.xi_range[:, 1]
     A0 = np.full(m, float(grid[0]))
     ident: dict[str, Any] = {"source": "cablesvc identify", "method": "per-level fits, then one joint least-squares fit of the amplitude functions (002 Sec 3)",
                              "cables": data.cables, "nominal_cables": [c for c in range(m) if c not in data.cables],
                              "amplitude_range": [float(grid[0]), float(grid[-1])],
                              "levels_mm": [float(f.amplitude.mean() * 1e3) for f in af.fits],
                              "held_out_mm": [float(a * 1e3) for a in af.held_out]}
-    return ModelParams(model="amplitude", params={"x_center": xc.tolist(), "amplitude_init": A0.tolist()},
+    return ModelParams(model="amplitude", params={"x_center": xc.tolist(), "amplitude_init": A0.tolist(),
+                                                  "xi_lo": lo.tolist(), "xi_hi": hi.tolist()},
                        tables=tables, robot=rob.name, identification=ident)
 
 

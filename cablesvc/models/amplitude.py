@@ -17,6 +17,8 @@ TABLE_COLUMNS = ("K0", "K1", "K2", "K3", "S_a", "alpha")
 NOMINAL_AMPLITUDES = (1e-4, 2.5e-4, 5e-4, 1e-3, 1.5e-3)
 #: points of the uniform amplitude grid the tables are resampled on when the model is built
 GRID_POINTS = 1024
+#: default |xi| limit of the backbone's polynomial part [m]: no limit in practice
+XI_UNBOUNDED = 1.0
 
 
 def sine_power_integral(alpha: np.ndarray) -> np.ndarray:
@@ -28,19 +30,47 @@ def sine_power_integral(alpha: np.ndarray) -> np.ndarray:
 
 
 def backbone(xi: np.ndarray, K0: np.ndarray, K1: np.ndarray, K2: np.ndarray, K3: np.ndarray,
-             out: Optional[np.ndarray] = None) -> np.ndarray:
+             out: Optional[np.ndarray] = None, *, lo: Optional[np.ndarray] = None, hi: Optional[np.ndarray] = None,
+             scratch: Optional[tuple[np.ndarray, np.ndarray]] = None) -> np.ndarray:
     """The backbone of eq 8 of 002, its spring part: K0 + K1 xi + K2 xi^2 + K3 xi^3 [N] at
     xi = x - x_center [m], by Horner's rule (into ``out``, nothing allocated when given).
+
+    With ``lo``, ``hi`` [m] (the elongations about x_center the parameters were identified
+    on), the polynomial holds inside [lo, hi] and continues along its tangent outside:
+    P(xi_c) + P'(xi_c) (xi - xi_c) with xi_c = xi held within [lo, hi], so value and
+    stiffness are continuous at the edges and the stiffness outside is the one at the edge
+    (as the amplitude tables hold their end values). A cubic fitted on +-1.5 mm is an
+    interpolant there; extrapolated to the 20 mm of a trajectory, its K2 xi^2 + K3 xi^3 grew
+    to tens or hundreds of newtons the data never showed. Inside [lo, hi] the result is the
+    unbounded one bit for bit. ``scratch``: two arrays of the output's shape (the live
+    kernel passes them so nothing is allocated).
 
     The one home of this law: :meth:`AmplitudeDependent.step` and
     :meth:`AmplitudeDependent.backbone_force` (the twin's elastic curve) evaluate it here."""
     p = np.empty(np.broadcast_shapes(*(np.shape(a) for a in (xi, K0, K1, K2, K3)))) if out is None else out
-    np.multiply(K3, xi, p)
+    if lo is None and hi is None:
+        xc = xi
+    else:
+        xc, t = scratch if scratch is not None else (np.empty(p.shape), np.empty(p.shape))
+        np.maximum(xi, -np.inf if lo is None else lo, out=xc)
+        np.minimum(xc, np.inf if hi is None else hi, out=xc)
+    np.multiply(K3, xc, p)
     np.add(p, K2, p)
-    np.multiply(p, xi, p)
+    np.multiply(p, xc, p)
     np.add(p, K1, p)
-    np.multiply(p, xi, p)
+    np.multiply(p, xc, p)
     np.add(p, K0, p)
+    if xc is not xi:
+        # P'(xi_c) = ((1.5 K3 xi_c + K2) xi_c) 2 + K1, times (xi - xi_c): exactly 0 inside
+        np.multiply(K3, xc, t)
+        np.multiply(t, 1.5, t)
+        np.add(t, K2, t)
+        np.multiply(t, xc, t)
+        np.multiply(t, 2.0, t)
+        np.add(t, K1, t)
+        np.subtract(xi, xc, xc)
+        np.multiply(t, xc, t)
+        np.add(p, t, p)
     return p
 
 
@@ -83,6 +113,10 @@ class AmplitudeDependent(CableModel):
     ``x = -A cos(w t)`` (eq 15) the damping force is eq 16 and the energy dissipated per
     cycle, the loop area, equals S_a exactly.
 
+    Outside the elongations it was identified on (``xi_lo`` <= xi <= ``xi_hi``, written by
+    ``cablesvc identify``), the polynomial part continues along its tangent
+    (:func:`backbone`); without them (default +-1 m) it is the plain polynomial.
+
     K0..K3, S_a and alpha are functions of A given as tables on an amplitude grid
     (``amplitudes`` [m], one table value per grid point, per cable, or per lane and cable),
     interpolated linearly and held constant outside the grid (eq 10 is one row of the
@@ -100,14 +134,18 @@ class AmplitudeDependent(CableModel):
     """
 
     name = "amplitude"
-    param_names = ("x_center", "amplitude_init", "omega_init", "reversal_deadband")
+    param_names = ("x_center", "amplitude_init", "omega_init", "reversal_deadband", "xi_lo", "xi_hi")
     defaults = {"x_center": 0.0, "amplitude_init": 5e-4, "omega_init": 2 * np.pi * 0.5,
-                "reversal_deadband": REVERSAL_DEADBAND}
+                "reversal_deadband": REVERSAL_DEADBAND, "xi_lo": -XI_UNBOUNDED, "xi_hi": XI_UNBOUNDED}
     param_docs = {
         "x_center": "elongation at the pretension working point, where xi = 0 [m]",
         "amplitude_init": "amplitude assumed before two reversals are seen [m]",
         "omega_init": "angular frequency assumed before two reversals are seen [rad/s]",
         "reversal_deadband": "motion back from the last extremum that counts as a reversal [m]",
+        "xi_lo": "smallest xi the backbone was identified on; below it the backbone continues along its "
+                 "tangent [m] (default -1 m: no limit)",
+        "xi_hi": "largest xi the backbone was identified on; above it the backbone continues along its "
+                 "tangent [m] (default 1 m: no limit)",
     }
     #: the kernel divides by them
     positive_params = ("amplitude_init", "omega_init")
@@ -247,6 +285,11 @@ class AmplitudeDependent(CableModel):
             raise ModelParameterError("amplitude: amplitude_init must be > 0 [m]")
         if np.any(self.params["omega_init"] <= 0):
             raise ModelParameterError("amplitude: omega_init must be > 0 [rad/s]")
+        if np.any(self.params["xi_lo"] >= self.params["xi_hi"]):
+            raise ModelParameterError("amplitude: xi_lo must be < xi_hi [m] (the identified elongation range "
+                                      "about x_center)")
+        # the tangent continuation costs nine ufuncs a tick: only where a limit is set
+        self._bounded = bool(np.any(self.params["xi_lo"] > -XI_UNBOUNDED) or np.any(self.params["xi_hi"] < XI_UNBOUNDED))
         self.amplitude_grid = grid
         self.tables = {k: np.array(v) for k, v in tables.items()}
         # uniform resampling, nearest-point lookup: with GRID_POINTS points the lookup error is
@@ -279,6 +322,7 @@ class AmplitudeDependent(CableModel):
         e = lambda: np.empty(sh)
         self._dx, self._nd, self._e, self._u, self._xi, self._p, self._r, self._aeff = (
             e(), e(), e(), e(), e(), e(), e(), e())
+        self._bb_scratch = (e(), e())
         self._rev = np.empty(sh, dtype=bool)
         self._newext = np.empty(sh, dtype=bool)
         self._idx = np.empty(sh, dtype=np.intp)
@@ -343,7 +387,11 @@ class AmplitudeDependent(CableModel):
         # polynomial spring part: the backbone
         xi, p = self._xi, self._p
         sub(x, self.params["x_center"], xi)
-        backbone(xi, K0, K1, K2, K3, out=p)
+        if self._bounded:
+            backbone(xi, K0, K1, K2, K3, out=p, lo=self.params["xi_lo"], hi=self.params["xi_hi"],
+                     scratch=self._bb_scratch)
+        else:
+            backbone(xi, K0, K1, K2, K3, out=p)
         # damping S_a q / A (|v| / (A w))^alpha sgn(v), with |v| / (A w) = |dx| T_half / (dt pi A)
         np.absolute(dx, r)
         mul(r, T, r)
@@ -388,7 +436,11 @@ class AmplitudeDependent(CableModel):
                 K = [self._tab[j, idx] for j in range(4)]
             else:
                 raise ValueError(f"backbone_force: interpolation must be 'nearest' or 'linear', got {interpolation!r}")
-            out[..., i] = backbone(xi[..., i], *K)
+            if self._bounded:
+                out[..., i] = backbone(xi[..., i], *K, lo=self.params["xi_lo"][lane, i],
+                                       hi=self.params["xi_hi"][lane, i])
+            else:
+                out[..., i] = backbone(xi[..., i], *K)
         return out
 
     @staticmethod
