@@ -135,15 +135,19 @@ def _param_table(fit: Any) -> list[str]:
         from cablesvc.identify.amplitude_levels import PER_LEVEL, UNITS
         af = fit.amplitude
         for j, c in enumerate(af.cables):
-            lines += [f"### cable {c}", "", f"x_center = {af.x_center[j]:.6g} m (pretension working point)", "",
+            rng = ("" if af.xi_range is None else
+                   f"; backbone identified on xi = {af.xi_range[j][0] * 1e3:.3g} to {af.xi_range[j][1] * 1e3:.3g} mm"
+                   " (it continues along its tangent outside)")
+            lines += [f"### cable {c}", "", f"x_center = {af.x_center[j]:.6g} m (pretension working point){rng}", "",
                       "| A [mm] | " + " | ".join(f"{k} [{UNITS[k]}]" for k in PER_LEVEL) + " | RMSE [N] |",
                       "|---" * (len(PER_LEVEL) + 2) + "|"]
             lt = af.level_table(j)
             for i, f in enumerate(af.fits):
                 cells = [format_value(lt[k][i], lt[k + "_se"][i]) for k in PER_LEVEL]
                 lines.append(f"| {lt['A'][i] * 1e3:.4g} | " + " | ".join(cells) + f" | {f.results[j]['rmse']:.4g} |")
-            degs = ", ".join(f"{k}: {af.functions[j][k].degree}" + (" (log-log)" if af.functions[j][k].log else "")
-                             for k in PER_LEVEL)
+            degs = ", ".join(f"{k}: " + (str(af.functions[j][k].degree) if af.functions[j][k].degree >= 0
+                                         else "absent (held at 0: the data do not show it)")
+                             + (" (log-log)" if af.functions[j][k].log else "") for k in PER_LEVEL)
             lines += ["", f"f_A degrees: {degs}", ""]
         if af.held_out:
             lines += [f"Held out (not fitted): {', '.join(f'{a * 1e3:.4g} mm' for a in af.held_out)}", ""]
