@@ -289,7 +289,9 @@ class AmplitudeDependent(CableModel):
             raise ModelParameterError("amplitude: xi_lo must be < xi_hi [m] (the identified elongation range "
                                       "about x_center)")
         # the tangent continuation costs nine ufuncs a tick: only where a limit is set
-        self._bounded = bool(np.any(self.params["xi_lo"] > -XI_UNBOUNDED) or np.any(self.params["xi_hi"] < XI_UNBOUNDED))
+        bounded = bool(np.any(self.params["xi_lo"] > -XI_UNBOUNDED) or np.any(self.params["xi_hi"] < XI_UNBOUNDED))
+        self._xi_lo = self.params["xi_lo"] if bounded else None
+        self._xi_hi = self.params["xi_hi"] if bounded else None
         self.amplitude_grid = grid
         self.tables = {k: np.array(v) for k, v in tables.items()}
         # uniform resampling, nearest-point lookup: with GRID_POINTS points the lookup error is
@@ -387,11 +389,7 @@ class AmplitudeDependent(CableModel):
         # polynomial spring part: the backbone
         xi, p = self._xi, self._p
         sub(x, self.params["x_center"], xi)
-        if self._bounded:
-            backbone(xi, K0, K1, K2, K3, out=p, lo=self.params["xi_lo"], hi=self.params["xi_hi"],
-                     scratch=self._bb_scratch)
-        else:
-            backbone(xi, K0, K1, K2, K3, out=p)
+        backbone(xi, K0, K1, K2, K3, out=p, lo=self._xi_lo, hi=self._xi_hi, scratch=self._bb_scratch)
         # damping S_a q / A (|v| / (A w))^alpha sgn(v), with |v| / (A w) = |dx| T_half / (dt pi A)
         np.absolute(dx, r)
         mul(r, T, r)
@@ -436,11 +434,8 @@ class AmplitudeDependent(CableModel):
                 K = [self._tab[j, idx] for j in range(4)]
             else:
                 raise ValueError(f"backbone_force: interpolation must be 'nearest' or 'linear', got {interpolation!r}")
-            if self._bounded:
-                out[..., i] = backbone(xi[..., i], *K, lo=self.params["xi_lo"][lane, i],
-                                       hi=self.params["xi_hi"][lane, i])
-            else:
-                out[..., i] = backbone(xi[..., i], *K)
+            out[..., i] = backbone(xi[..., i], *K, lo=None if self._xi_lo is None else self._xi_lo[lane, i],
+                                   hi=None if self._xi_hi is None else self._xi_hi[lane, i])
         return out
 
     @staticmethod
