@@ -265,7 +265,7 @@ def read_reduced(path: Any, robot: Robot, params: ModelParams, *, rate: float = 
     temp = None
     if has_temp:
         from cablesvc.discover.pipeline import fill_slow
-        temp, _ = fill_slow(kept["t"], kept["T"]) if not np.all(np.isfinite(kept["T"])) else (kept["T"], 0)
+        temp, _ = fill_slow(kept["t"], kept["T"])      # all finite: a copy; mostly missing: None
     s = Signals(t=kept["t"], dt=float(raw_dt * D), y=kept["y"], f0=kept["f0"], x=kept["x"], v=kept["v"],
                 v_slide=kept["v_slide"], wrap=kept["wrap"], free_length=kept["free_length"], temperature=temp,
                 ea=np.asarray(geom.ea, float), has_pulley=np.asarray(geom.has_pulley, bool),
