@@ -152,6 +152,22 @@ def test_case_plan():
     assert {p.robot_index for p in plan} == {0, 1, 2, 3}
 
 
+def test_truth_damping_scales_only_the_damping():
+    # --truth-damping: the same robot (same draws), its rate-dependent damping scaled,
+    # and the scale travels with every planned case to the worker that calibrates it
+    from cablesvc.bench.discover_cases import robot_variant
+    a, b = robot_variant(1, 5), robot_variant(1, 5, 0.2)
+    np.testing.assert_allclose(b.beta, 0.2 * a.beta, rtol=1e-12)
+    for f in ("k", "scale", "c", "x_s", "a_sat", "alpha", "t_env", "jk", "jr", "km", "tau"):
+        np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
+    assert a.backbone == b.backbone
+    assert {p.damping for p in case_plan(4, 5, damping=0.2)} == {0.2}
+    assert {p.damping for p in case_plan(4, 5)} == {1.0}
+    out = subprocess.run([sys.executable, "-m", "cablesvc", "bench", "discover", "--truth-damping", "-1"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and "--truth-damping" in out.stderr
+
+
 def test_ool_scoring():
     from cablesvc.bench.discover import ool_handled
     from cablesvc.discover.pipeline import Finding

@@ -44,6 +44,7 @@ How a case is made:
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import math
 import time
@@ -64,6 +65,7 @@ from cablesvc.bench.truth import (
     wrench_rows,
 )
 from cablesvc.config import Robot, load_robot
+from cablesvc.config.robot import RobotGeometry
 from cablesvc.config.params import ModelParams, home_lengths, nominal_params
 from cablesvc.jsonable import jsonable
 from cablesvc.kinematics import inverse_kinematics, platform_wrench, structure_matrix
@@ -75,7 +77,7 @@ from cablesvc.simulate.scenarios import ScenarioContext, hold_sine, trajectory
 from cablesvc.simulate.twin import Ambient
 
 __all__ = ["NOISE", "ROBOT", "RATE", "DURATION", "CAL_AMPLITUDES", "RATIO", "KINDS", "SimRobot",
-           "RealisticCase", "CaseSpec", "calibrated_robot", "make_realistic_case", "case_plan", "iter_cases",
+           "RealisticCase", "CaseSpec", "calibrated_robot", "robot_variant", "make_realistic_case", "case_plan", "iter_cases",
            "strip_truth", "wrench_rms"]
 
 NOISE = 0.1                 # N
@@ -147,10 +149,25 @@ def _nominal_elastic(geom: Any) -> ElasticCurve:
     return ElasticCurve(nominal_params(geom), geom.n_cables)
 
 
-def calibrated_robot(index: int, fleet_seed: int = 0) -> SimRobot:
+def robot_variant(index: int, fleet_seed: int = 0, damping: float = 1.0,
+                  geom: Optional[RobotGeometry] = None) -> CableVariant:
+    """The true cable law of robot ``index`` of fleet ``fleet_seed`` (:func:`draw_variant`
+    about the robot file's EA / L at home), its damping ``beta`` scaled by ``damping``."""
+    geom = geom if geom is not None else load_robot(ROBOT).geometry()
+    k = np.asarray(geom.ea, float) / home_lengths(geom)
+    variant = draw_variant(k, np.random.default_rng([fleet_seed, index, 41]))
+    if damping != 1.0:
+        variant = dataclasses.replace(variant, beta=variant.beta * float(damping))
+    return variant
+
+
+def calibrated_robot(index: int, fleet_seed: int = 0, damping: float = 1.0) -> SimRobot:
     """Robot ``index`` of fleet ``fleet_seed``: its cable law, calibration recording and
-    identified baseline (computed once per process, then cached)."""
-    key = (int(index), int(fleet_seed))
+    identified baseline (computed once per process, then cached). ``damping`` scales the
+    truth law's rate-dependent damping h (``beta``), the largest part of what the
+    identified baseline leaves on a trajectory: 1 as drawn; below 1 a milder model-form
+    error (the same robot otherwise, as the draws do not change)."""
+    key = (int(index), int(fleet_seed), float(damping))
     if key in _FLEET:
         return _FLEET[key]
     from cablesvc.identify.cable import identify_cable
@@ -158,8 +175,7 @@ def calibrated_robot(index: int, fleet_seed: int = 0) -> SimRobot:
     rob = load_robot(ROBOT)
     geom = rob.geometry()
     home = home_lengths(geom)
-    k = np.asarray(geom.ea, float) / home
-    variant = draw_variant(k, np.random.default_rng([fleet_seed, index, 41]))
+    variant = robot_variant(index, fleet_seed, damping, geom)
     seed = int(np.random.default_rng([fleet_seed, index, 42]).integers(0, 2 ** 31 - 1))
     ctx = ScenarioContext(geom=geom, rate=RATE, duration=None, rng=np.random.default_rng([seed, 1]),
                           elastic=_nominal_elastic(geom))
@@ -363,16 +379,18 @@ def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Option
 
 @dataclass
 class CaseSpec:
-    """One planned case: ``kind``, effect ``names``, ``seed``, ``robot_index``, ``index``."""
+    """One planned case: ``kind``, effect ``names``, ``seed``, ``robot_index``, ``index``,
+    and the truth's ``damping`` scale (:func:`calibrated_robot`)."""
 
     kind: str
     names: list[str]
     seed: int
     robot_index: int
     index: int
+    damping: float = 1.0
 
 
-def case_plan(cases: int = 40, seed: int = 0, fleet: int = 4) -> list[CaseSpec]:
+def case_plan(cases: int = 40, seed: int = 0, fleet: int = 4, damping: float = 1.0) -> list[CaseSpec]:
     """``cases`` single-effect cases (the seven twin effects in turn), as many pairs
     (pairs of different effects, drawn in turn from a shuffled list of all pairs), as many
     controls, and ``cases // 2`` (at least 1) out-of-library cases (the three in turn);
@@ -389,7 +407,7 @@ def case_plan(cases: int = 40, seed: int = 0, fleet: int = 4) -> list[CaseSpec]:
     out = []
     for i, (kind, nm) in enumerate(plan):
         out.append(CaseSpec(kind=kind, names=nm, seed=int(rng.integers(0, 2 ** 31 - 1)),
-                            robot_index=i % max(1, int(fleet)), index=i))
+                            robot_index=i % max(1, int(fleet)), index=i, damping=float(damping)))
     return out
 
 
