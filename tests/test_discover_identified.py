@@ -242,6 +242,42 @@ def test_block_screen_names_a_term_only_where_it_explains_most_of_the_residual()
     assert {2, 5} <= set(loose.named()["viscous"])
 
 
+def test_block_screen_counts_the_share_beyond_the_noise():
+    # a perfect baseline, a slow force drift of 2 x the noise RMS on cable 6: the
+    # recalibration absorbs part of it, and what is left is about 2.5 noise variances
+    # against 1 of noise. The old rule (share of the residual, noise included, >= 0.8)
+    # refused it; the share of what exceeds the noise is nearly all of it
+    from cablesvc.discover.pipeline import build_signals, split_blocks
+    from cablesvc.discover.screen import BlockScreen
+    from cablesvc.models.terms import LIBRARY, Recalibration
+
+    rob = load_robot(ROBOT)
+    s = build_signals(_rec([], seed=5), rob, baseline_params(rob))
+    train, valid, _ = split_blocks(s.t, 2.5)
+    s.train = train
+    drift = 1.0 - np.exp(-s.t / 4.0) + 0.02 * s.t
+    drift = -(drift - drift.mean()) / drift.std()          # creep lowers the force
+    r = 0.1 * np.random.default_rng(5).standard_normal(s.y.shape)
+    r[:, 6] += 0.2 * drift
+    sel = BlockScreen().select(s, r, [LIBRARY["creep"]], train, valid, noise=np.full(s.m, 0.1),
+                               base=[Recalibration()])
+    t6 = sel.tests[("creep", 6)]
+    assert sel.named() == {"creep": [6]}
+    assert t6["share"] < 0.8 < 0.9 < t6["excess_share"]
+
+
+def test_block_screen_rule():
+    # named: significant, most of the excess over the noise, and at least gain_min
+    from cablesvc.discover.screen import BlockScreen
+    screen = BlockScreen(alpha=0.05, share_min=0.9, gain_min=0.25)
+    assert screen._ok({"gain": 0.3, "before": 1.3}, 0.001)
+    assert not screen._ok({"gain": 0.3, "before": 1.3}, 0.2)        # not significant
+    assert not screen._ok({"gain": 0.1, "before": 1.1}, 0.001)      # too small to matter
+    assert not screen._ok({"gain": 2.0, "before": 4.0}, 0.001)      # a part of a larger misfit
+    assert screen._ok({"gain": 2.8, "before": 4.0}, 0.001)
+    assert screen._ok({"gain": 0.3, "before": 0.9}, 0.001)          # nothing beyond the noise left
+
+
 def test_exact_signed_rank_p_values_equal_scipys():
     from scipy import stats
 

@@ -113,7 +113,9 @@ def block_gain_test(e0: list[np.ndarray], e1: list[np.ndarray], noise: float) ->
     """Per-block gains g_k = mean(e0^2 - e1^2) / noise^2 and their one-sided Wilcoxon
     signed-rank test: {"gain": mean g (noise variances), "t" (the statistic), "p",
     "blocks", "positive": share of g_k > 0, "before": mean e0^2 (noise variances),
-    "share": gain / before, the share of the held-out residual variance explained}."""
+    "share": gain / before, the share of the held-out residual variance explained,
+    "excess_share": gain / (before - 1), the share of what exceeds the noise variance
+    (inf when nothing does)}."""
     var = max(noise, 1e-12) ** 2
     g = np.array([float(np.mean(a * a - b * b)) / var for a, b in zip(e0, e1)])
     b0 = np.array([float(np.mean(a * a)) / var for a in e0])
@@ -122,7 +124,8 @@ def block_gain_test(e0: list[np.ndarray], e1: list[np.ndarray], noise: float) ->
     before = float(np.mean(b0)) if b0.size else 0.0
     return {"gain": gain, "t": t, "p": p, "blocks": int(g.size),
             "positive": float(np.mean(g > 0)) if g.size else 0.0, "before": before,
-            "share": gain / before if before > 0 else 0.0}
+            "share": gain / before if before > 0 else 0.0,
+            "excess_share": gain / (before - 1.0) if before > 1.0 else math.inf}
 
 
 def excess_test(e: list[np.ndarray], noise: float, floor: float) -> dict[str, float]:

@@ -38,6 +38,7 @@ from cablesvc.discover.locate import locate
 from cablesvc.discover.select import Fit, ForwardSelector, Selection, fit_terms
 from cablesvc.discover.screen import BlockScreen
 from cablesvc.errors import DiscoveryError
+from cablesvc.jsonable import jsonable
 from cablesvc.kinematics import inverse_kinematics
 from cablesvc.models import simulate
 from cablesvc.models.reversal import reversal_amplitude
@@ -156,8 +157,9 @@ class Finding:
     #: one-sided Wilcoxon signed-rank test, Holm-corrected over all (term, cable) tries);
     #: empty in exact mode
     p: dict[int, float] = field(default_factory=dict)
-    #: per cable, the share of the held-out residual variance (what the recalibrated
-    #: baseline leaves) the term explains (:mod:`cablesvc.discover.screen`); empty in exact mode
+    #: per cable, the share of what the recalibrated baseline leaves beyond the sensor noise
+    #: (held-out variance) that the term explains (:mod:`cablesvc.discover.screen`; inf where
+    #: nothing exceeds the noise); empty in exact mode
     share: dict[int, float] = field(default_factory=dict)
     #: evidence from outside the force model, in words (the measured forces' balance for a
     #: lagging force channel); empty when the term was named on the block screen alone
@@ -178,7 +180,8 @@ class Finding:
         if self.p:
             ev += f", block-level p = {self.p_value:.2g}"
         if self.share:
-            ev += f", explains {100.0 * min(self.share.values()):.0f} % of the held-out residual"
+            ev += (f", explains {100.0 * min(min(self.share.values()), 1.0):.0f} % of the held-out residual "
+                   "beyond the noise")
         if self.evidence:
             ev += f"; {self.evidence}"
         return (f"{self.label}: the residual follows {self.variable} on cable{'s' if len(self.cables) > 1 else ''} "
@@ -333,8 +336,9 @@ class Discovery:
         return out
 
     def to_json(self) -> dict[str, Any]:
+        """The discovery as JSON-ready values (non-finite numbers as null)."""
         m = self.residual.shape[1]
-        return {
+        return jsonable({
             "robot": self.robot,
             "baseline": {"model": self.baseline.model, "source": self.baseline.source},
             "split": {k: int(v.sum()) for k, v in self.masks.items()} | {"block_s": self.options.get("block")},
@@ -367,7 +371,7 @@ class Discovery:
             "dropped": self.options.get("dropped"),
             "summary": self.summary(),
             "cables": m,
-        }
+        })
 
 
 def _corr(a: np.ndarray, b: np.ndarray, centred: bool = True) -> float:
@@ -591,9 +595,11 @@ UNEXPLAINED_FLOOR = 1.0
 #: ... and by this many times the median excess of all cables: what an imperfect baseline
 #: leaves everywhere after its recalibration is its model form, not an unexplained effect
 UNEXPLAINED_OVER_TYPICAL = 4.0
-#: the share of the held-out residual variance (what the recalibrated baseline leaves on
-#: the cable, noise included) a term must explain to be named (:mod:`.screen`)
-SHARE_MIN = 0.8
+#: the share of what the recalibrated baseline leaves on the cable beyond the sensor noise
+#: (held-out) that a term must explain to be named (:mod:`.screen`) ...
+SHARE_MIN = 0.9
+#: ... and the least held-out gain [noise variances] of a named term
+GAIN_MIN = 0.25
 
 
 def _finding(t: Term, cables: list[int], s: Signals, r: np.ndarray, final: dict[int, Fit], full: dict[int, Fit],
@@ -645,7 +651,8 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     # the selector of this mode is the block screen (:mod:`cablesvc.discover.screen`); a
     # BlockScreen passed in is used with its own options, any other selector is for the
     # exact-baseline mode, where every residual is physics
-    screen = selector if isinstance(selector, BlockScreen) else BlockScreen(alpha=ALPHA, share_min=SHARE_MIN)
+    screen = (selector if isinstance(selector, BlockScreen)
+              else BlockScreen(alpha=ALPHA, share_min=SHARE_MIN, gain_min=GAIN_MIN))
     cache = DesignCache()
     # the measured forces' equilibrium (002 eq 2) comes first: it needs no cable model. A
     # force channel that lags breaks the balance, and no error of the cable law can; where
@@ -685,7 +692,7 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
             named.setdefault(u.name, []).append(c)
     findings = [_finding(next(u for u in cands if u.name == n), cs, s, r, final, full, test,
                          {c: outside[(n, c)]["p"] if (n, c) in outside else adj[(n, c)] for c in cs},
-                         {c: sel.joint.get((n, c), tests[(n, c)])["share"] for c in cs}) for n, cs in named.items()]
+                         {c: sel.joint.get((n, c), tests[(n, c)])["excess_share"] for c in cs}) for n, cs in named.items()]
     for f in findings:
         lagging = [c for c in f.cables if (f.term, c) in outside]
         if lagging:
@@ -765,7 +772,7 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                 "p": float(max(un_adj[c] for c in cs))})
     sel_info = {"tests": {f"{n}@{c}": dict(v) for (n, c), v in tests.items()},
                 "joint_tests": {f"{n}@{c}": dict(v) for (n, c), v in sel.joint.items()}, "tries": tries,
-                "share_min": screen.share_min,
+                "share_min": screen.share_min, "gain_min": screen.gain_min,
                 "unexplained_floor_noise_var": floor, "typical_excess_noise_var": typical}
     return Discovery(robot=rob.name, baseline=base, signals=s, residual=r,
                      masks={"train": train, "valid": valid, "test": test}, location=loc, selection=sel,
