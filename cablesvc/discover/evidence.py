@@ -12,8 +12,6 @@ that fitting may use (training + validation, never the test blocks):
   the K gains are tested by a one-sided Wilcoxon signed-rank test (a term explains much
   in some blocks and little in others, so a t-test on so few, so unequal gains is weak);
 * p-values of all (term, cable) tries are corrected by Holm's step-down procedure.
-
-:func:`effective_n` gives the AR(1) effective sample size for reports.
 """
 
 from __future__ import annotations
@@ -28,7 +26,7 @@ from scipy import special
 from cablesvc.discover.select import DesignCache, joint_designs, solve_designs, strips_nuisance
 from cablesvc.models.terms import Signals, Term
 
-__all__ = ["block_ids", "loo_errors", "block_gain_test", "excess_test", "holm", "effective_n", "signed_rank_test",
+__all__ = ["block_ids", "loo_errors", "block_gain_test", "excess_test", "holm", "signed_rank_test",
            "t_test"]
 
 
@@ -148,13 +146,3 @@ def holm(p: dict, tries: int) -> dict:
         run = max(run, min(1.0, (tries - i) * p[k]))
         out[k] = run
     return out
-
-
-def effective_n(e: np.ndarray) -> float:
-    """AR(1) effective sample size n (1 - rho) / (1 + rho) of a residual ``e`` (N,)."""
-    e = e - e.mean()
-    d = float(e @ e)
-    if e.size < 3 or d <= 0:
-        return float(e.size)
-    rho = float(np.clip((e[1:] @ e[:-1]) / d, -0.999, 0.999))
-    return float(e.size * (1.0 - rho) / (1.0 + rho))

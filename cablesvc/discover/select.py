@@ -34,6 +34,7 @@ from scipy.linalg import solve_triangular
 from scipy.optimize import lsq_linear, minimize_scalar
 
 from cablesvc.models.terms import Design, Signals, Term
+from cablesvc.serial import lag_one_correlation, variance_inflation
 
 __all__ = ["DesignCache", "Fit", "Selection", "SelectOptions", "ForwardSelector", "fit_terms", "joint_designs",
            "predict_terms", "solve_designs", "strips_nuisance"]
@@ -330,16 +331,16 @@ class ForwardSelector:
 
     def _eff(self, r: np.ndarray, f: Fit, valid: np.ndarray, c: int) -> float:
         """(1 - rho) / (1 + rho) of the validation residual of fit ``f`` on cable ``c``
-        (lag-one pairs inside the validation blocks only); 1 without ``effective_n``."""
+        (:mod:`cablesvc.serial`; lag-one pairs inside the validation blocks only); 1
+        without ``effective_n``."""
         if not self.options.effective_n:
             return 1.0
         e = r[:, c] - f.pred
-        idx = np.flatnonzero(valid[1:] & valid[:-1])
-        a, b = e[idx], e[idx + 1]
-        a, b = a - a.mean(), b - b.mean()
-        d = math.sqrt(float(a @ a) * float(b @ b))
-        rho = float(np.clip(a @ b / d, 0.0, 0.999)) if d > 0 else 0.0
-        return (1.0 - rho) / (1.0 + rho)
+        e = np.where(valid, e - e[valid].mean(), 0.0) if valid.any() else e
+        # the validation blocks, each its own run of ticks
+        edges = np.flatnonzero(np.diff(valid.astype(np.int8))) + 1
+        runs = [p for p, v in zip(np.split(e, edges), np.split(valid, edges)) if v[0]]
+        return 1.0 / variance_inflation(lag_one_correlation(runs, floor=0.0, cap=0.999))
 
     def _n(self, fit: Fit) -> int:
         """Candidate terms on a fit (the base terms do not count against ``max_terms``)."""

@@ -17,6 +17,7 @@ from scipy.stats import chi2 as chi2_dist
 from cablesvc.identify.identifiability import jacobian_statistics
 from cablesvc.identify.local import refine
 from cablesvc.identify.result import IdentifyResult
+from cablesvc.serial import lag_one_correlation, variance_inflation
 from cablesvc.identify.amplitude_levels import ALPHA_MAX, FREE, PER_LEVEL, LevelData, LevelFit, damping_regressor, lin_solve
 
 __all__ = ["AmplitudeFunction", "fit_amplitude_function", "POWER", "OPTIONAL", "fit_joint", "residual_inflation"]
@@ -207,10 +208,7 @@ def residual_inflation(residuals: list[np.ndarray]) -> float:
     correlated samples carry about n (1 - rho) / (1 + rho) independent ones), rho pooled
     over the pieces ``residuals`` (each in time order) and floored at 0, so white
     residuals keep the plain test."""
-    num = sum(float(r[1:] @ r[:-1]) for r in residuals if r.size > 1)
-    den = sum(float(r @ r) for r in residuals)
-    rho = min(max(num / den, 0.0), 0.99) if den > 0 else 0.0
-    return (1.0 + rho) / (1.0 - rho)
+    return variance_inflation(lag_one_correlation(residuals, floor=0.0, cap=0.99))
 
 
 def _start(prob: _JointProblem, level_x: np.ndarray, level_se: np.ndarray, forms: dict[str, int]) -> np.ndarray:
