@@ -692,7 +692,8 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
             named.setdefault(u.name, []).append(c)
     findings = [_finding(next(u for u in cands if u.name == n), cs, s, r, final, full, test,
                          {c: outside[(n, c)]["p"] if (n, c) in outside else adj[(n, c)] for c in cs},
-                         {c: sel.joint.get((n, c), tests[(n, c)])["excess_share"] for c in cs}) for n, cs in named.items()]
+                         {c: sel.joint.get((n, c), tests[(n, c)])["excess_share"] for c in cs})
+                for n, cs in named.items()]
     for f in findings:
         lagging = [c for c in f.cables if (f.term, c) in outside]
         if lagging:
