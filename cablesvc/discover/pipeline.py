@@ -214,6 +214,9 @@ class Discovery:
     unexplained: list[dict[str, Any]] = field(default_factory=list)
     #: the measured forces' wrench balance (:func:`cablesvc.discover.equilibrium.equilibrium_check`)
     equilibrium: dict[str, Any] = field(default_factory=dict)
+    #: per candidate term not named, the smallest effect this recording could show beside
+    #: the baseline's recalibration (:func:`cablesvc.discover.detectability.describe_limits`)
+    detection: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def named(self) -> list[str]:
@@ -291,6 +294,10 @@ class Discovery:
             lines.append(f"unexplained residual remains on cables {', '.join(map(str, u['cables']))}: "
                          f"{u['excess_rms_N']:.2g} N RMS beyond the noise, follows {u['variable']} "
                          f"(eta2 {u['eta2']:.2f}), spectrum peak {u['peak_hz']:.3g} Hz (block-level p = {u['p']:.2g})")
+        if self.detection:
+            lines.append("what this recording cannot show beside the baseline's recalibration (detection limits, "
+                         "lower bounds):")
+            lines.extend("  " + d["words"] for d in self.detection)
         m = self.residual.shape[1]
         lines.append("held-out (test) RMSE per cable [N], before -> after: " + "; ".join(
             f"{c}: {self.rmse_before[c]:.3g} -> {self.rmse_after[c]:.3g}" for c in range(m)))
@@ -356,6 +363,7 @@ class Discovery:
             "recalibration": self.recalibration,
             "unexplained": self.unexplained,
             "equilibrium": self.equilibrium,
+            "detection_limits": self.detection,
             "mode": self.options.get("mode", "exact"),
             "steps": [{"term": st.term, "cables": st.cables,
                        "valid_mse_before": {str(k): v for k, v in st.mse_before.items()},
@@ -638,6 +646,7 @@ def _spectrum_peak(e: np.ndarray, dt: float) -> float:
 
 def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, train, valid, test, block,
                          t_origin) -> Discovery:
+    from cablesvc.discover.detectability import describe_limits, detection_limits
     from cablesvc.discover.equilibrium import equilibrium_check
     from cablesvc.discover.evidence import block_gain_test, excess_test, holm, loo_errors
     from cablesvc.discover.locate import state_regions
@@ -771,13 +780,30 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                 "peak_hz": float(np.median([_spectrum_peak(left[fitmask, c], s.dt) for c in cs])),
                 "excess_rms_N": float(np.median([math.sqrt(max(un_test[c]["excess"], 0.0)) * noise[c] for c in cs])),
                 "p": float(max(un_adj[c] for c in cs))})
+    # what the recording cannot show beside the recalibration: per candidate term, the
+    # least effect the screen would name on each cable, where the recalibrated baseline
+    # leaves what it leaves on the median cable (its model form: a cable's own excess
+    # holds its own effect); reported for the terms not named (dead time is judged by the
+    # forces' balance where it holds, which the recalibration cannot mimic)
+    before_c: dict[int, list[float]] = {}
+    for (n, c), v in tests.items():
+        before_c.setdefault(c, []).append(v["before"])
+    excess_c = np.array([max(float(np.median(b)) - 1.0, 0.0) for b in before_c.values()])
+    model_form_excess = float(np.median(excess_c)) if excess_c.size else 0.0
+    limits = detection_limits(s, cands, nuis, blocks, noise, model_form_excess, screen.share_min,
+                              screen.gain_min, cache)
+    skip = set(named) | ({lag.name} if (eq["holds"] and lag is not None) else set())
+    detection = describe_limits(limits, skip=skip, labels={t.name: t.label for t in cands})
     sel_info = {"tests": {f"{n}@{c}": dict(v) for (n, c), v in tests.items()},
                 "joint_tests": {f"{n}@{c}": dict(v) for (n, c), v in sel.joint.items()}, "tries": tries,
                 "share_min": screen.share_min, "gain_min": screen.gain_min,
-                "unexplained_floor_noise_var": floor, "typical_excess_noise_var": typical}
+                "unexplained_floor_noise_var": floor, "typical_excess_noise_var": typical,
+                "model_form_excess_noise_var": model_form_excess,
+                "limits": {f"{n}@{c}": {"free": v["free"], "limit_rms_N": v["limit_rms_N"]}
+                           for (n, c), v in limits.items()}}
     return Discovery(robot=rob.name, baseline=base, signals=s, residual=r,
                      masks={"train": train, "valid": valid, "test": test}, location=loc, selection=sel,
                      final=final, full=full, findings=findings, rmse_before=rmse_b, rmse_after=rmse_a,
                      noise=noise, options={"block": block, "mode": "identified", "alpha": ALPHA,
                                            "t_origin": t_origin, **sel_info},
-                     recalibration=recal, unexplained=unexplained, equilibrium=eq)
+                     recalibration=recal, unexplained=unexplained, equilibrium=eq, detection=detection)

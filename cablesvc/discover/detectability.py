@@ -1,0 +1,226 @@
+"""What a recording can show beyond the baseline's recalibration: detection limits.
+
+With an identified baseline, discovery first recalibrates the baseline family on the
+training ticks (:mod:`.nuisance`) and names a term only for what it explains beyond that
+(:mod:`.screen`). Over a given trajectory the recalibration's columns (offset, stiffness
+scale, loop area, backbone curvature, amplitude dependence) can reproduce part of a term's
+own force signature: over 30 s of point-to-point motion a creep drift looks much like an
+offset plus a stiffness change, and sag (a softening at low tension) much like a backbone
+curvature. That part of an effect is absorbed and cannot be told from a recalibration on
+this recording, however good the method.
+
+:func:`detection_limits` measures it per (term, cable), from the inputs only (no measured
+force enters):
+
+* ``free``: the largest share of the term's signature (mean square over the screen's
+  test blocks, over every direction of its columns and every grid value of its
+  hyper-parameters) that the recalibration's columns leave on held-out blocks, each
+  block's part fitted on all the other blocks, as the screen's test does: the largest
+  generalised eigenvalue of (R^T R, U^T U), U the term's columns and fixed part, R what
+  the held-out fits leave of them. 1 means nothing of it can be mimicked, 0 that all of
+  it can. (Held out, not in-sample: a sag concentrated at the lowest tensions is fitted
+  well by a backbone curvature that sees those ticks, and poorly by one that does not);
+* ``limit_rms_N``: the smallest effect RMS [N] on that cable, added to what the recording
+  holds, that the screen would name. The screen asks the held-out gain g (noise
+  variances) of a term to be at least ``gain_min`` and at least ``share_min`` of what the
+  recalibrated baseline leaves beyond the noise, ``excess + g`` (``excess``: what it
+  leaves on an effect-free cable, the baseline's model form; the pipeline takes the
+  median over the recording's cables, since a cable's own excess holds its own effect).
+  An effect of RMS E leaves about g = free E^2 / sigma^2 after the recalibration, so it
+  is named only when E >= sigma sqrt(need / free), need = max(gain_min, share_min excess
+  / (1 - share_min)). The block test's significance is not
+  in it, and the term's most favourable shape is assumed, so it is an optimistic limit.
+
+An effect below its limit is not "absent": the recording cannot tell it from a
+recalibration. The report says so per term (:func:`describe_limits`), so that "nothing
+found" reads as what it is, and what a longer recording or one that revisits the
+calibration pose would add.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Optional
+
+import numpy as np
+
+from cablesvc.models.terms import Signals, Term
+
+__all__ = ["HeldOutFit", "unmimicked_share", "detection_limits", "describe_limits", "required_gain"]
+
+
+def _basis(A: np.ndarray) -> np.ndarray:
+    """The columns of ``A`` that are finite and not all zero, each scaled to unit norm."""
+    A = np.asarray(A, float)
+    if A.ndim == 1:
+        A = A[:, None]
+    A = A[:, np.all(np.isfinite(A), axis=0) & np.any(A != 0.0, axis=0)]
+    return A / np.linalg.norm(A, axis=0) if A.shape[1] else A
+
+
+class HeldOutFit:
+    """Least-squares fits of the columns of ``nuisance`` (n, q), each block's rows fitted
+    on all the other blocks (``blocks``: index arrays into the rows), or on all rows when
+    ``blocks`` is None; the per-block normal matrices are inverted once, so that many
+    signatures are fitted against one nuisance cheaply (:meth:`share`)."""
+
+    def __init__(self, nuisance: np.ndarray, blocks: Optional[list[np.ndarray]] = None):
+        self.rows = None if blocks is None else np.concatenate([np.asarray(b, int) for b in blocks])
+        N = _basis(nuisance)
+        self.N = N if self.rows is None else N[self.rows]
+        if blocks is not None:
+            self.edges = np.cumsum([0] + [len(b) for b in blocks])
+            G = self.N.T @ self.N
+            self.P = [np.linalg.pinv(G - self.N[a:b].T @ self.N[a:b], rcond=1e-10)
+                      for a, b in zip(self.edges[:-1], self.edges[1:])]
+
+    def left(self, U: np.ndarray) -> np.ndarray:
+        """What the fits leave of the columns ``U`` (rows as the nuisance's, in block order
+        when held out)."""
+        N = self.N
+        if N.shape[1] == 0:
+            return U.copy()
+        if self.rows is None:
+            return U - N @ np.linalg.lstsq(N, U, rcond=None)[0]
+        H = N.T @ U
+        R = np.empty_like(U)
+        for P, a, b in zip(self.P, self.edges[:-1], self.edges[1:]):
+            Nk, Uk = N[a:b], U[a:b]
+            R[a:b] = Uk - Nk @ (P @ (H - Nk.T @ Uk))
+        return R
+
+    def share(self, cols: np.ndarray) -> float:
+        """Largest share (0..1) of the mean square of any signature ``cols @ beta`` (n, p)
+        that the fits leave (see :func:`unmimicked_share`)."""
+        U = _basis(cols)
+        if U.shape[1] == 0:
+            return 0.0
+        if self.rows is not None:
+            U = U[self.rows]
+        R = self.left(U)
+        # whiten U's own span (an orthonormal basis of it): the largest eigenvalue of what
+        # is left of that basis is the largest share left of any combination
+        _, Ru = np.linalg.qr(U)
+        du = np.abs(np.diag(Ru))
+        ok = du > 1e-10 * max(float(du.max()), 1e-300)
+        if not np.any(ok):
+            return 0.0
+        W = R[:, ok] @ np.linalg.pinv(Ru[np.ix_(ok, ok)])
+        w = np.linalg.eigvalsh(W.T @ W)
+        return float(np.clip(w[-1], 0.0, 1.0))
+
+
+def unmimicked_share(nuisance: np.ndarray, cols: np.ndarray, blocks: Optional[list[np.ndarray]] = None) -> float:
+    """Largest share (0..1) of the mean square of any signature ``cols @ beta`` that a
+    least-squares fit of the columns of ``nuisance`` (n, q) leaves. ``cols`` (n, p).
+
+    Without ``blocks`` the fit is on all rows (what a projection leaves). With ``blocks``
+    (index arrays into the rows) it is held out, as the screen's test is: each block's
+    part is what the fit on all the other blocks leaves there, so a shape the nuisance
+    follows only by fitting each block to itself counts as free. Columns that are zero
+    are ignored; 0.0 when none is left."""
+    return HeldOutFit(nuisance, blocks).share(cols)
+
+
+def required_gain(excess: float, share_min: float, gain_min: float) -> float:
+    """The least held-out gain [noise variances] the screen names, where the recalibrated
+    baseline leaves ``excess`` noise variances beyond the noise on an effect-free cable:
+    max(gain_min, share_min excess / (1 - share_min))."""
+    ex = max(float(excess), 0.0)
+    if share_min >= 1.0:
+        return math.inf
+    return max(float(gain_min), share_min * ex / (1.0 - share_min))
+
+
+def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list[np.ndarray], noise: np.ndarray,
+                     excess: Any, share_min: float, gain_min: float,
+                     cache: Optional[Any] = None) -> dict[tuple[str, int], dict[str, float]]:
+    """Per (term, cable) on which the term applies: ``free`` (share of its signature the
+    recalibration ``nuisance`` cannot mimic on held-out ``blocks``, the screen's test units:
+    index arrays of ticks), ``limit_rms_N``
+    (the smallest effect RMS the screen could name there; inf when ``free`` is 0) and
+    ``hyper`` (the grid value of its hyper-parameters where its shape is freest).
+    ``noise`` (m,) [N]; ``excess`` [noise variances] what the recalibrated baseline leaves
+    beyond the noise on an effect-free cable, per cable (m,) or one value for all;
+    ``share_min`` and ``gain_min`` the screen's (:class:`~cablesvc.discover.screen.BlockScreen`). ``cache``: a
+    :class:`~cablesvc.discover.select.DesignCache` (the screen's), so designs are built once."""
+    ex = np.broadcast_to(np.asarray(excess, float), (s.m,))
+    out: dict[tuple[str, int], dict[str, float]] = {}
+    mask = np.zeros(s.n, bool)
+    for b in blocks:
+        mask[b] = True
+    local = []                      # the blocks as indices into the masked ticks
+    pos = np.cumsum(mask) - 1
+    for b in blocks:
+        local.append(pos[np.asarray(b, int)])
+
+    def design(t: Term, c: int, h: dict[str, float]):
+        return cache.get(t, s, c, h) if cache is not None else t.design(s, c, h)
+
+    for c in range(s.m):
+        nd = design(nuisance, c, {})
+        N = nd.X[mask]
+        if nd.fixed is not None:
+            N = np.column_stack([N, nd.fixed[mask]])
+        fitter = HeldOutFit(N, local)
+        for t in terms:
+            if not t.applies(s, c):
+                continue
+            best, best_h = 0.0, {}
+            for h in t.grid(s):
+                d = design(t, c, h)
+                if t.nuisance and not t.owns_nuisance:
+                    d = d.without(t.nuisance)
+                cols = [d.X[mask, j] for j in range(d.p)]
+                if d.fixed is not None:
+                    cols.append(d.fixed[mask])
+                if cols:
+                    share = fitter.share(np.column_stack(cols))
+                    if share > best:
+                        best, best_h = share, dict(h)
+            need = required_gain(float(ex[c]), share_min, gain_min)
+            lim = float(noise[c]) * math.sqrt(need / best) if best > 0 else math.inf
+            out[(t.name, c)] = {"free": best, "limit_rms_N": lim, "hyper": best_h, "need_noise_var": need}
+    return out
+
+
+def _pct(share: float) -> str:
+    """A share as a percentage for words: 99.6 % reads "> 99", not "100"."""
+    v = 100.0 * share
+    if v > 99.0 and v < 100.0:
+        return "> 99"
+    if 0.0 < v < 1.0:
+        return "< 1"
+    return f"{v:.0f}"
+
+
+def describe_limits(limits: dict[tuple[str, int], dict[str, float]], skip: set[str] = frozenset(),
+                    labels: Optional[dict[str, str]] = None) -> list[dict[str, Any]]:
+    """Per term (those not in ``skip``), over its cables: the range of the detection limit
+    [N RMS] and of the share the recalibration mimics, with a plain-words sentence; sorted
+    from the term the recording shows worst."""
+    by: dict[str, list[tuple[int, dict[str, float]]]] = {}
+    for (n, c), v in limits.items():
+        if n not in skip:
+            by.setdefault(n, []).append((c, v))
+    rows = []
+    for n, cv in by.items():
+        lims = [v["limit_rms_N"] for _, v in cv]
+        mim = [1.0 - v["free"] for _, v in cv]
+        p_lo, p_hi = _pct(min(mim)), _pct(max(mim))
+        cables = sorted(c for c, _ in cv)
+        lo, hi = min(lims), max(lims)
+        label = (labels or {}).get(n, n)
+        if math.isinf(lo):
+            words = (f"{n} ({label}): cannot be told from the baseline's recalibration on this recording "
+                     f"(it mimics all of its shape)")
+        else:
+            rng = f"{lo:.2g} N RMS" if hi <= 1.05 * lo else f"{lo:.2g}-{'inf' if math.isinf(hi) else f'{hi:.2g}'} N RMS"
+            words = (f"{n} ({label}): not told from the baseline's recalibration below {rng} on cables "
+                     f"{', '.join(map(str, cables))} (the recalibration mimics "
+                     f"{p_lo if p_lo == p_hi else p_lo + '-' + p_hi} % of its shape over this recording)")
+        rows.append({"term": n, "cables": cables, "limit_rms_N": {str(c): v["limit_rms_N"] for c, v in cv},
+                     "mimicked": {str(c): 1.0 - v["free"] for c, v in cv}, "min_limit_rms_N": lo,
+                     "max_limit_rms_N": hi, "words": words})
+    rows.sort(key=lambda r: -r["min_limit_rms_N"] if math.isfinite(r["min_limit_rms_N"]) else -math.inf)
+    return rows

@@ -1,0 +1,151 @@
+"""Detection limits: what a recording can show beside the baseline's recalibration
+(:mod:`cablesvc.discover.detectability`)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from cablesvc.config import load_robot
+from cablesvc.discover.detectability import (describe_limits, detection_limits, required_gain,
+                                             unmimicked_share)
+from cablesvc.discover.pipeline import baseline_params, build_signals, split_blocks
+from cablesvc.simulate import TruthConfig, simulate_recording
+
+ROBOT = "ipanema3"
+
+
+def test_unmimicked_share_of_known_signatures():
+    rng = np.random.default_rng(1)
+    n = 400
+    t = np.linspace(0.0, 1.0, n)
+    N = np.column_stack([np.ones(n), t])                  # an offset and a ramp
+    inside = 2.0 - 3.0 * t
+    assert unmimicked_share(N, inside) == pytest.approx(0.0, abs=1e-12)
+    b = rng.standard_normal(n)
+    b -= N @ np.linalg.lstsq(N, b, rcond=None)[0]         # orthogonal to the span
+    assert unmimicked_share(N, b) == pytest.approx(1.0, abs=1e-12)
+    # a mix: the share left is the orthogonal part's mean square over the whole one's
+    u = inside + 0.5 * b
+    want = np.sum((0.5 * b) ** 2) / np.sum(u ** 2)
+    assert unmimicked_share(N, u) == pytest.approx(want, rel=1e-10)
+    # several columns: the freest combination of them counts (here b alone)
+    assert unmimicked_share(N, np.column_stack([inside, u])) == pytest.approx(1.0, abs=1e-10)
+    # zero columns are ignored; none left: nothing can be seen
+    assert unmimicked_share(N, np.column_stack([np.zeros(n), u])) == pytest.approx(want, rel=1e-10)
+    assert unmimicked_share(N, np.zeros(n)) == 0.0
+    # a rank-deficient nuisance (a column twice) gives the same answer
+    assert unmimicked_share(np.column_stack([N, N[:, 1]]), u) == pytest.approx(want, rel=1e-8)
+
+
+def test_held_out_share_is_at_least_the_in_sample_one():
+    # held out, each block fitted by the others: a shape in the nuisance's span is still
+    # reproduced exactly; any other is left at least as much as by the in-sample fit, and
+    # one that only the block's own ticks pin down (a cubic where one block alone
+    # reaches far in x) is left far more
+    rng = np.random.default_rng(2)
+    n = 600
+    blocks = [np.arange(i, i + 50) for i in range(0, n, 50)]
+    x = rng.uniform(0.0, 1.0, n)
+    x[550:] += 2.0                                         # the last block alone reaches x > 2
+    N = np.column_stack([np.ones(n), x, x ** 2])
+    assert unmimicked_share(N, 1.0 - 2.0 * x + 0.5 * x ** 2, blocks) == pytest.approx(0.0, abs=1e-9)
+    for u in (np.sin(5.0 * x), rng.standard_normal(n), np.exp(x)):
+        assert unmimicked_share(N, u, blocks) >= unmimicked_share(N, u) - 1e-12
+    cubic = x ** 3                                         # fitted by a parabola only with the far block
+    assert unmimicked_share(N, cubic) < 0.01 and unmimicked_share(N, cubic, blocks) > 0.2
+
+
+def test_required_gain_follows_the_screen_rule():
+    from cablesvc.discover.screen import BlockScreen
+    assert required_gain(0.0, 0.9, 0.25) == 0.25
+    assert required_gain(-1.0, 0.9, 0.25) == 0.25
+    assert required_gain(1.0, 0.9, 0.25) == pytest.approx(9.0)
+    # at exactly the required gain the screen's share condition holds, just below it fails
+    screen = BlockScreen(alpha=0.05, share_min=0.9, gain_min=0.25)
+    for excess in (0.05, 0.5, 3.0):
+        g = required_gain(excess, 0.9, 0.25)
+        assert screen._ok({"gain": g * (1 + 1e-9), "before": 1.0 + excess + g}, 0.001)
+        assert not screen._ok({"gain": 0.97 * g, "before": 1.0 + excess + 0.97 * g}, 0.001)
+
+
+@pytest.fixture(scope="module")
+def signals():
+    rob = load_robot(ROBOT)
+    rec = simulate_recording(ROBOT, "trajectory", None, truth=TruthConfig(effects=[], noise_std=0.1),
+                             duration=20.0, rate=100, seed=5)
+    s = build_signals(rec, rob, baseline_params(rob))
+    train, valid, _ = split_blocks(s.t, 2.5)
+    s.train = train
+    return s, train, valid
+
+
+def test_the_limit_is_what_the_screen_can_name(signals):
+    # a sag signature on cable 3 (its freest shape on this trajectory), white noise
+    # elsewhere, a perfect baseline: at twice its detection limit the screen names it, at
+    # half of it the screen cannot (the limit is a lower bound of what can be named)
+    from cablesvc.discover.evidence import block_ids
+    from cablesvc.discover.screen import BlockScreen
+    from cablesvc.models.terms import LIBRARY, Recalibration
+    s, train, valid = signals
+    sag, c, sigma = LIBRARY["sag"], 3, 0.1
+    noise = np.full(s.m, sigma)
+    blocks = block_ids(s.t, 1.25, train | valid)          # the screen's test units
+    lim = detection_limits(s, [sag], Recalibration(), blocks, noise, 0.0, 0.9, 0.25)[("sag", c)]
+    assert 0.0 < lim["free"] < 1.0 and math.isfinite(lim["limit_rms_N"])
+    assert lim["limit_rms_N"] == pytest.approx(sigma * math.sqrt(0.25 / lim["free"]))
+    shape = sag.design(s, c, lim["hyper"]).fixed
+    shape = shape / np.sqrt(np.mean(shape[train | valid] ** 2))
+    base = sigma * np.random.default_rng(8).standard_normal(s.y.shape)
+    tests = {}
+    for k in (2.0, 0.5):
+        r = base.copy()
+        r[:, c] += k * lim["limit_rms_N"] * shape
+        sel = BlockScreen().select(s, r, [sag], train, valid, noise=noise, base=[Recalibration()])
+        tests[k] = sel.tests[("sag", c)]
+        assert ("sag" in sel.named() and c in sel.named()["sag"]) == (k > 1)
+    assert tests[2.0]["gain"] > 0.25 > tests[0.5]["gain"]
+
+
+def test_limits_in_the_discovery_report():
+    # creep named beyond a recalibrated, wrong baseline: the other terms get their limits,
+    # in words and in the JSON; every limit is at least the noise-only bound and they all
+    # come from one required gain
+    from tests.test_discover_identified import _rec, _wrong_baseline
+
+    from cablesvc.discover import discover
+    d = discover(_rec(["creep:0.8@2"], seed=11), ROBOT, _wrong_baseline())
+    assert d.named == ["creep"]
+    terms = {row["term"] for row in d.detection}
+    assert "creep" not in terms and {"viscous", "temperature", "sag"} <= terms
+    lines = d.summary()
+    head = next(i for i, line in enumerate(lines) if line.startswith("what this recording cannot show"))
+    assert all(lines[head + 1 + i].startswith("  " + row["term"] + " (") for i, row in enumerate(d.detection))
+    doc = d.to_json()
+    assert doc["detection_limits"] == d.detection
+    excess = d.options["model_form_excess_noise_var"]
+    assert excess >= 0.0
+    for row in d.detection:
+        for c, lim in row["limit_rms_N"].items():
+            free = 1.0 - row["mimicked"][c]
+            sigma = d.noise[int(c)]
+            assert lim >= sigma * math.sqrt(0.25) * (1 - 1e-9)
+            if math.isfinite(lim):      # one required gain: the model form's, over the free share
+                assert (lim / sigma) ** 2 * free == pytest.approx(required_gain(excess, 0.9, 0.25))
+        assert row["min_limit_rms_N"] == min(row["limit_rms_N"].values())
+    # the creep's own cable: the limits of every term are there too, named or not
+    assert {"creep@2", "viscous@2"} <= set(d.options["limits"])
+
+
+def test_describe_limits_words_and_order():
+    lim = {("sag", 0): {"free": 0.004, "limit_rms_N": 2.0}, ("sag", 1): {"free": 0.002, "limit_rms_N": 2.8},
+           ("pulley", 0): {"free": 0.5, "limit_rms_N": 0.1}, ("creep", 1): {"free": 0.0, "limit_rms_N": math.inf},
+           ("viscous", 0): {"free": 0.3, "limit_rms_N": 0.2}}
+    rows = describe_limits(lim, skip={"viscous"}, labels={"sag": "sag at low tension"})
+    assert [r["term"] for r in rows] == ["creep", "sag", "pulley"]      # the worst shown first
+    assert "cannot be told from the baseline's recalibration" in rows[0]["words"]
+    assert rows[1]["words"].startswith("sag (sag at low tension): not told from the baseline's recalibration "
+                                       "below 2-2.8 N RMS on cables 0, 1")
+    assert "> 99 %" in rows[1]["words"] and "50 %" in rows[2]["words"]
