@@ -235,3 +235,18 @@ def test_balance_search_enters_the_best_accepted_explanation_not_the_largest_gai
     assert sorted(eq["delay"]) == sorted(truth["cables"]) and not eq["sensor"]
     for c in truth["cables"]:
         assert abs(eq["delay"][c]["tau_s"] - truth["magnitude"]) < 0.03, eq["delay"]
+
+
+def test_each_true_effect_is_set_against_the_recordings_detection_limit(robot):
+    # the bench row carries, per true effect, its RMS on its weakest cable and the least
+    # detection limit discovery computed on its cables (named or not)
+    from cablesvc.bench.discover import _realistic_row
+    from cablesvc.bench.discover_cases import CaseSpec
+    row = _realistic_row(CaseSpec("single", ["temperature"], seed=17, robot_index=0, index=0), 991)
+    v = row["effect_vs_limit"]["temperature"]
+    assert v["effect_rms_N"] == pytest.approx(row["effect_rms"]["temperature"])
+    assert v["below"] == (v["effect_rms_N"] < v["least_limit_N"])
+    assert v["named"] == ("temperature" in row["named"])
+    # no limit is below what the noise alone allows (gain 0.25 noise variances, all of
+    # the shape free)
+    assert 0.5 * 0.9 * NOISE < v["least_limit_N"] < np.inf

@@ -38,7 +38,14 @@ what discovery reports about the baseline itself, recalibration or model form, i
 named term); a control is a false finding when any term is named; an out-of-library case
 is handled when discovery reports an unexplained residual (its ``unexplained`` list is
 not empty) or names exactly one term, on the effect's cables only. The RMSE reduction is
-over the cables the effects were put on (test blocks).
+over the cables the effects were put on (test blocks). Each true effect is also set
+against the recording's detection limit (:mod:`cablesvc.discover.detectability`: the
+least effect the screen could name beside the recalibration), per case in
+``effect_vs_limit`` (its RMS on its weakest cable, the least limit on its cables, whether
+it was below and whether it was named), and over the singles in ``single_at_limit_total``
+/ ``single_at_limit_correct`` (at or above the limit) and ``single_below_limit`` /
+``single_below_limit_correct``: what the method misses against what the recording could
+not show.
 """
 
 from __future__ import annotations
@@ -230,6 +237,16 @@ def _realistic_row(spec: Any, seed: int) -> dict[str, Any]:
     ra = np.asarray(getattr(d, "rmse_after", []), float)
     after = float(np.sqrt(np.mean(ra[affected] ** 2)) / RN) if affected and ra.size else None
     unexpl_cables = sorted({int(c) for u in unexplained if isinstance(u, dict) for c in u.get("cables", [])})
+    # each true effect against what the recording could show beside the recalibration:
+    # its RMS on its weakest cable and the least detection limit on its cables
+    limits = (getattr(d, "options", {}) or {}).get("limits", {})
+    vs_limit = {}
+    for e in case.effects:
+        cs = [int(c) for c in (e.applied_cables if e.applied_cables is not None else affected)]
+        lims = [limits[f"{e.name}@{c}"]["limit_rms_N"] for c in cs if f"{e.name}@{c}" in limits]
+        if lims and e.name in case.effect_rms:
+            vs_limit[e.name] = {"effect_rms_N": float(case.effect_rms[e.name]), "least_limit_N": float(min(lims)),
+                                "below": bool(case.effect_rms[e.name] < min(lims)), "named": e.name in named}
     return {"kind": spec.kind, "seed": spec.seed, "robot": spec.robot_index, "index": spec.index,
             "truth": [e.describe() for e in case.effects], "truth_names": truth, "truth_cables": affected,
             "effect_rms": case.effect_rms, "named": {f.term: list(f.cables) for f in findings},
@@ -242,6 +259,7 @@ def _realistic_row(spec: Any, seed: int) -> dict[str, Any]:
             "no_wrong_term": bool(ool_no_wrong_term(findings, unexplained, affected)) if spec.kind == "ool" else None,
             "test_rmse_after_over_noise": after,
             "baseline_rmse_over_noise": (rb / RN).tolist() if rb.size else None,
+            "effect_vs_limit": vs_limit,
             "wrench_rms": case.wrench, "seconds": {"simulate": case.seconds["simulate"], "discover": td},
             "robot_seconds": dict(sr.seconds)}
 
@@ -306,6 +324,9 @@ def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Opti
     pair = [c for c in per_case if c["kind"] == "pair"]
     ctrl = [c for c in per_case if c["kind"] == "control"]
     ool = [c for c in per_case if c["kind"] == "ool"]
+    # singles whose effect was under / at or above what the recording could show
+    below = [c for c in sing if any(v["below"] for v in c["effect_vs_limit"].values())]
+    above = [c for c in sing if c["effect_vs_limit"] and c not in below]
     reds = [c["rmse_reduction"] for c in per_case if c["rmse_reduction"] is not None]
     afters = [c["test_rmse_after_over_noise"] for c in per_case if c["test_rmse_after_over_noise"] is not None]
     ctrl_b = [float(np.sqrt(np.mean(np.square(c["baseline_rmse_over_noise"])))) for c in ctrl
@@ -322,6 +343,10 @@ def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Opti
         "ool_unexplained_on_cables": sum(c["unexplained_on_truth_cables"] for c in ool),
         "ool_no_wrong_term": sum(c["no_wrong_term"] for c in ool),
         "control_unexplained": sum(bool(c["unexplained"]) for c in ctrl),
+        "single_below_limit": len(below),
+        "single_below_limit_correct": sum(c["correct"] for c in below),
+        "single_at_limit_total": len(above),
+        "single_at_limit_correct": sum(c["correct"] for c in above),
         "median_test_rmse_after_over_noise": float(np.median(afters)) if afters else None,
         "median_rmse_reduction": float(np.median(reds)) if reds else None,
         "control_baseline_rms_over_noise": float(np.median(ctrl_b)) if ctrl_b else None,
@@ -398,6 +423,9 @@ def _main_realistic(args) -> int:
           f"{res['ool_unexplained_on_cables']}; nothing named off the effect's cables, at most one term: "
           f"{res['ool_no_wrong_term']})")
     print(f"controls with an unexplained residual reported: {pct(res['control_unexplained'], res['control_total'])}")
+    print(f"single effects at or above their recording's detection limit (RMS on the weakest cable against the "
+          f"least limit on its cables): named {pct(res['single_at_limit_correct'], res['single_at_limit_total'])}; "
+          f"below it: named {pct(res['single_below_limit_correct'], res['single_below_limit'])}")
     mr = res["median_rmse_reduction"]
     print("median held-out RMSE reduction on affected cables: " + ("-" if mr is None else f"{mr:.1%}"))
     ma = res["median_test_rmse_after_over_noise"]
