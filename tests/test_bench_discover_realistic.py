@@ -244,9 +244,15 @@ def test_each_true_effect_is_set_against_the_recordings_detection_limit(robot):
     from cablesvc.bench.discover_cases import CaseSpec
     row = _realistic_row(CaseSpec("single", ["temperature"], seed=17, robot_index=0, index=0), 991)
     v = row["effect_vs_limit"]["temperature"]
-    assert v["effect_rms_N"] == pytest.approx(row["effect_rms"]["temperature"])
-    assert v["below"] == (v["effect_rms_N"] < v["least_limit_N"])
+    each = {int(c): x for c, x in v["effect_rms_cables_N"].items()}
+    assert set(each) == set(row["truth_cables"]) and set(v["limit_N"]) == set(v["floor_N"]) == set(
+        v["effect_rms_cables_N"])
+    assert min(each.values()) == pytest.approx(row["effect_rms"]["temperature"])
+    for key in ("floor", "limit"):
+        assert v[f"below_{key}"] == all(each[int(c)] < lim for c, lim in v[f"{key}_N"].items())
+        assert v[f"below_{key}"] == (v[f"most_over_{key}"] < 1.0)
+    assert all(v["floor_N"][c] <= v["limit_N"][c] for c in v["floor_N"])
     assert v["named"] == ("temperature" in row["named"])
-    # no limit is below what the noise alone allows (gain 0.25 noise variances, all of
-    # the shape free)
-    assert 0.5 * 0.9 * NOISE < v["least_limit_N"] < np.inf
+    # no floor is below what the noise alone allows (gain 0.25 noise variances, all of the
+    # shape free)
+    assert 0.5 * 0.9 * NOISE < min(v["floor_N"].values()) < np.inf

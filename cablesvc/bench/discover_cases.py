@@ -226,6 +226,9 @@ class RealisticCase:
     wrench: dict[str, float]
     seconds: dict[str, float]
     clean_force: np.ndarray = field(repr=False, default=None)   # measured forces of the same run without effects, no noise
+    #: a single effect's RMS on each of its cables [N] (the weakest one is ``effect_rms``);
+    #: empty for pairs, where the two effects' forces mix on shared cables
+    effect_rms_cables: dict[int, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -294,6 +297,14 @@ def _draw_effect(name: str, m: int, rng: np.random.Generator) -> tuple[tuple[int
     return cables, ref, opts
 
 
+def _effect_rms_cables(run: EquilibriumRun, sr: SimRobot, tr: _Traj, cables: tuple[int, ...]) -> np.ndarray:
+    """What the effect leaves for a perfect baseline, as :func:`_effect_rms`, on each of
+    ``cables`` [N]."""
+    x = solve_ik(sr.geom, run.position, run.orientation).length - tr.motor_length
+    d = run.measured - cable_law(sr.variant, x, 1.0 / RATE)
+    return np.sqrt(np.mean(d[:, list(cables)] ** 2, axis=0))
+
+
 def _effect_rms(run: EquilibriumRun, sr: SimRobot, tr: _Traj, cables: tuple[int, ...]) -> float:
     """What the effect leaves for a perfect baseline: the RMS, on its weakest cable, of the
     measured force (noise-free) minus the truth law *without* the effect run on the
@@ -301,9 +312,7 @@ def _effect_rms(run: EquilibriumRun, sr: SimRobot, tr: _Traj, cables: tuple[int,
     file, minus the recorded motor length) [N]. Comparing forces with those of the run
     without the effect would instead count the platform's equilibrium shift, which moves a
     cable effect onto the other cables and which any baseline sees in the pose."""
-    x = solve_ik(sr.geom, run.position, run.orientation).length - tr.motor_length
-    d = run.measured - cable_law(sr.variant, x, 1.0 / RATE)
-    return float(np.min(np.sqrt(np.mean(d[:, list(cables)] ** 2, axis=0))))
+    return float(np.min(_effect_rms_cables(run, sr, tr, cables)))
 
 
 def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Optional[SimRobot] = None,
@@ -346,8 +355,12 @@ def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Option
         rms[name] = e1
         mags[name] = mag
     final = _run(sr, tr, effects, base) if effects else base
+    per_cable: dict[int, float] = {}
     if len(effects) == 1:       # measured on the case itself (balanced), not the pilot
-        rms[effects[0].name] = _effect_rms(final, sr, tr, tuple(effects[0].applied_cables or effects[0].cables))
+        cs = tuple(effects[0].applied_cables or effects[0].cables)
+        each = _effect_rms_cables(final, sr, tr, cs)
+        rms[effects[0].name] = float(np.min(each))
+        per_cable = {int(c): float(v) for c, v in zip(cs, each)}
     noise = NOISE * np.random.default_rng([seed, 3]).standard_normal(final.measured.shape)
     meas = final.measured + noise
     N = tr.t.size
@@ -369,7 +382,7 @@ def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Option
     return RealisticCase(kind=kind, names=list(names), seed=int(seed), robot=sr, calib=sr.calib,
                          baseline=sr.baseline, recording=strip_truth(rec), truth=truth, effects=effects,
                          effect_rms=rms, wrench=wr, seconds={"calibrate": t1 - t0, "simulate": t2 - t1},
-                         clean_force=base.measured)
+                         clean_force=base.measured, effect_rms_cables=per_cable)
 
 
 # --------------------------------------------------------------------------------------

@@ -20,18 +20,22 @@ force enters):
   the held-out fits leave of them. 1 means nothing of it can be mimicked, 0 that all of
   it can. (Held out, not in-sample: a sag concentrated at the lowest tensions is fitted
   well by a backbone curvature that sees those ticks, and poorly by one that does not);
-* ``limit_rms_N``: the smallest effect RMS [N] on that cable, added to what the recording
-  holds, that the screen would name. The screen asks the held-out gain g (noise
-  variances) of a term to be at least ``gain_min`` and at least ``share_min`` of what the
-  recalibrated baseline leaves beyond the noise, ``excess + g`` (``excess``: what it
-  leaves on an effect-free cable, the baseline's model form; the pipeline takes the
-  median over the recording's cables, since a cable's own excess holds its own effect).
-  An effect of RMS E leaves about g = free E^2 / sigma^2 after the recalibration, so it
-  is named only when E >= sigma sqrt(need / free), need = max(gain_min, share_min excess
-  / (1 - share_min)). The block test's significance is not
-  in it, and the term's most favourable shape is assumed, so it is an optimistic limit.
+* ``floor_rms_N`` and ``limit_rms_N``: the smallest effect RMS [N] on that cable that
+  the screen could name, with a perfect baseline and with this one's model form. The
+  screen asks the held-out gain g (noise variances) of a term to be at least
+  ``gain_min`` and at least ``share_min`` of what the recalibrated baseline leaves beyond
+  the noise, ``excess + g`` (``excess``: what it leaves on an effect-free cable, the
+  baseline's model form; the pipeline takes the median over the recording's cables,
+  since a cable's own excess holds its own effect). An effect of RMS E leaves about
+  g = free E^2 / sigma^2 after the recalibration, so it is named only when
+  E >= sigma sqrt(need / free), need = max(gain_min, share_min excess / (1 - share_min)).
+  With a perfect baseline (excess 0) that is the floor, sigma sqrt(gain_min / free):
+  below it no baseline, however good, lets the screen name the term. The limit with the
+  baseline's model form is an estimate for a typical cable (the affected cable's own
+  model form may be smaller or larger). The block test's significance is in neither,
+  and the term's most favourable shape is assumed.
 
-An effect below its limit is not "absent": the recording cannot tell it from a
+An effect below its floor is not "absent": the recording cannot tell it from a
 recalibration. The report says so per term (:func:`describe_limits`), so that "nothing
 found" reads as what it is, and what a longer recording or one that revisits the
 calibration pose would add.
@@ -137,9 +141,10 @@ def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list
                      cache: Optional[Any] = None) -> dict[tuple[str, int], dict[str, float]]:
     """Per (term, cable) on which the term applies: ``free`` (share of its signature the
     recalibration ``nuisance`` cannot mimic on held-out ``blocks``, the screen's test units:
-    index arrays of ticks), ``limit_rms_N``
-    (the smallest effect RMS the screen could name there; inf when ``free`` is 0) and
-    ``hyper`` (the grid value of its hyper-parameters where its shape is freest).
+    index arrays of ticks), ``floor_rms_N`` and ``limit_rms_N`` (the smallest effect RMS
+    the screen could name there with a perfect baseline and with ``excess``; inf when
+    ``free`` is 0) and ``hyper`` (the grid value of its hyper-parameters where its shape
+    is freest).
     ``noise`` (m,) [N]; ``excess`` [noise variances] what the recalibrated baseline leaves
     beyond the noise on an effect-free cable, per cable (m,) or one value for all;
     ``share_min`` and ``gain_min`` the screen's (:class:`~cablesvc.discover.screen.BlockScreen`). ``cache``: a
@@ -179,8 +184,11 @@ def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list
                     if share > best:
                         best, best_h = share, dict(h)
             need = required_gain(float(ex[c]), share_min, gain_min)
-            lim = float(noise[c]) * math.sqrt(need / best) if best > 0 else math.inf
-            out[(t.name, c)] = {"free": best, "limit_rms_N": lim, "hyper": best_h, "need_noise_var": need}
+            floor = required_gain(0.0, share_min, gain_min)
+            lim, flo = ((float(noise[c]) * math.sqrt(need / best), float(noise[c]) * math.sqrt(floor / best))
+                        if best > 0 else (math.inf, math.inf))
+            out[(t.name, c)] = {"free": best, "floor_rms_N": flo, "limit_rms_N": lim, "hyper": best_h,
+                                "need_noise_var": need}
     return out
 
 
@@ -194,33 +202,44 @@ def _pct(share: float) -> str:
     return f"{v:.0f}"
 
 
+def _range(values: list[float]) -> str:
+    lo, hi = min(values), max(values)
+    if math.isinf(lo):
+        return "inf"
+    if hi <= 1.05 * lo:
+        return f"{lo:.2g}"
+    return f"{lo:.2g}-{'inf' if math.isinf(hi) else f'{hi:.2g}'}"
+
+
 def describe_limits(limits: dict[tuple[str, int], dict[str, float]], skip: set[str] = frozenset(),
                     labels: Optional[dict[str, str]] = None) -> list[dict[str, Any]]:
-    """Per term (those not in ``skip``), over its cables: the range of the detection limit
-    [N RMS] and of the share the recalibration mimics, with a plain-words sentence; sorted
-    from the term the recording shows worst."""
+    """Per term (those not in ``skip``), over its cables: the ranges of the floor and of
+    the limit [N RMS] and of the share the recalibration mimics, with a plain-words
+    sentence; sorted from the term the recording shows worst."""
     by: dict[str, list[tuple[int, dict[str, float]]]] = {}
     for (n, c), v in limits.items():
         if n not in skip:
             by.setdefault(n, []).append((c, v))
     rows = []
     for n, cv in by.items():
+        cv.sort()
+        floors = [v["floor_rms_N"] for _, v in cv]
         lims = [v["limit_rms_N"] for _, v in cv]
         mim = [1.0 - v["free"] for _, v in cv]
+        cables = [c for c, _ in cv]
         p_lo, p_hi = _pct(min(mim)), _pct(max(mim))
-        cables = sorted(c for c, _ in cv)
-        lo, hi = min(lims), max(lims)
         label = (labels or {}).get(n, n)
-        if math.isinf(lo):
+        if math.isinf(min(floors)):
             words = (f"{n} ({label}): cannot be told from the baseline's recalibration on this recording "
                      f"(it mimics all of its shape)")
         else:
-            rng = f"{lo:.2g} N RMS" if hi <= 1.05 * lo else f"{lo:.2g}-{'inf' if math.isinf(hi) else f'{hi:.2g}'} N RMS"
-            words = (f"{n} ({label}): not told from the baseline's recalibration below {rng} on cables "
-                     f"{', '.join(map(str, cables))} (the recalibration mimics "
+            words = (f"{n} ({label}): not told from the baseline's recalibration below {_range(floors)} N RMS "
+                     f"even with a perfect baseline, about {_range(lims)} N RMS with this one's model form, on "
+                     f"cables {', '.join(map(str, cables))} (the recalibration mimics "
                      f"{p_lo if p_lo == p_hi else p_lo + '-' + p_hi} % of its shape over this recording)")
-        rows.append({"term": n, "cables": cables, "limit_rms_N": {str(c): v["limit_rms_N"] for c, v in cv},
-                     "mimicked": {str(c): 1.0 - v["free"] for c, v in cv}, "min_limit_rms_N": lo,
-                     "max_limit_rms_N": hi, "words": words})
-    rows.sort(key=lambda r: -r["min_limit_rms_N"] if math.isfinite(r["min_limit_rms_N"]) else -math.inf)
+        rows.append({"term": n, "cables": cables, "floor_rms_N": {str(c): v["floor_rms_N"] for c, v in cv},
+                     "limit_rms_N": {str(c): v["limit_rms_N"] for c, v in cv},
+                     "mimicked": {str(c): 1.0 - v["free"] for c, v in cv}, "min_floor_rms_N": min(floors),
+                     "min_limit_rms_N": min(lims), "max_limit_rms_N": max(lims), "words": words})
+    rows.sort(key=lambda r: -r["min_floor_rms_N"] if math.isfinite(r["min_floor_rms_N"]) else -math.inf)
     return rows

@@ -295,8 +295,8 @@ class Discovery:
                          f"{u['excess_rms_N']:.2g} N RMS beyond the noise, follows {u['variable']} "
                          f"(eta2 {u['eta2']:.2f}), spectrum peak {u['peak_hz']:.3g} Hz (block-level p = {u['p']:.2g})")
         if self.detection:
-            lines.append("what this recording cannot show beside the baseline's recalibration (detection limits, "
-                         "lower bounds):")
+            lines.append("what this recording cannot show beside the baseline's recalibration (detection limits; "
+                         "the first figure is a lower bound, the second an estimate for a typical cable):")
             lines.extend("  " + d["words"] for d in self.detection)
         m = self.residual.shape[1]
         lines.append("held-out (test) RMSE per cable [N], before -> after: " + "; ".join(
@@ -799,8 +799,8 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                 "share_min": screen.share_min, "gain_min": screen.gain_min,
                 "unexplained_floor_noise_var": floor, "typical_excess_noise_var": typical,
                 "model_form_excess_noise_var": model_form_excess,
-                "limits": {f"{n}@{c}": {"free": v["free"], "limit_rms_N": v["limit_rms_N"]}
-                           for (n, c), v in limits.items()}}
+                "limits": {f"{n}@{c}": {"free": v["free"], "floor_rms_N": v["floor_rms_N"],
+                                        "limit_rms_N": v["limit_rms_N"]} for (n, c), v in limits.items()}}
     return Discovery(robot=rob.name, baseline=base, signals=s, residual=r,
                      masks={"train": train, "valid": valid, "test": test}, location=loc, selection=sel,
                      final=final, full=full, findings=findings, rmse_before=rmse_b, rmse_after=rmse_a,
