@@ -40,6 +40,25 @@ def test_unmimicked_share_of_known_signatures():
     assert unmimicked_share(np.column_stack([N, N[:, 1]]), u) == pytest.approx(want, rel=1e-8)
 
 
+def test_a_sign_the_term_cannot_take_does_not_count():
+    # two columns whose difference the nuisance cannot mimic but whose positive
+    # combinations it mostly can (a creep's settling and steady parts both lengthen the
+    # cable): free when any sign is allowed, mostly mimicked when both must be >= 0
+    from cablesvc.discover.detectability import HeldOutFit
+    rng = np.random.default_rng(6)
+    n = 500
+    t = np.linspace(0.0, 1.0, n)
+    N = np.column_stack([np.ones(n), t])
+    w = rng.standard_normal(n)
+    w -= N @ np.linalg.lstsq(N, w, rcond=None)[0]
+    c = 3.0 * np.linalg.norm(w) / np.sqrt(n) * np.ones(n)      # |c|^2 = 9 |w|^2
+    cols = np.column_stack([c + w, c - w])
+    fit = HeldOutFit(N)
+    assert fit.share(cols) == pytest.approx(1.0, abs=1e-9)
+    assert fit.share(cols, np.array([True, True])) == pytest.approx(0.1, rel=1e-6)
+    assert fit.share(cols, np.array([True, False])) == pytest.approx(1.0, abs=1e-9)   # (1, -1) is allowed
+
+
 def test_held_out_share_is_at_least_the_in_sample_one():
     # held out, each block fitted by the others: a shape in the nuisance's span is still
     # reproduced exactly; any other is left at least as much as by the in-sample fit, and

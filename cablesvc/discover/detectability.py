@@ -14,7 +14,8 @@ force enters):
 
 * ``free``: the largest share of the term's signature (mean square over the screen's
   test blocks, over every direction of its columns and every grid value of its
-  hyper-parameters) that the recalibration's columns leave on held-out blocks, each
+  hyper-parameters; a coefficient that cannot be negative, like a creep's, keeps its
+  sign) that the recalibration's columns leave on held-out blocks, each
   block's part fitted on all the other blocks, as the screen's test does: the largest
   generalised eigenvalue of (R^T R, U^T U), U the term's columns and fixed part, R what
   the held-out fits leave of them. 1 means nothing of it can be mimicked, 0 that all of
@@ -53,13 +54,20 @@ from cablesvc.models.terms import Signals, Term
 __all__ = ["HeldOutFit", "unmimicked_share", "detection_limits", "describe_limits", "required_gain"]
 
 
-def _basis(A: np.ndarray) -> np.ndarray:
-    """The columns of ``A`` that are finite and not all zero, each scaled to unit norm."""
+def _basis(A: np.ndarray, with_keep: bool = False):
+    """The columns of ``A`` that are finite and not all zero, each scaled to unit norm
+    (and, ``with_keep``, which columns those are)."""
     A = np.asarray(A, float)
     if A.ndim == 1:
         A = A[:, None]
-    A = A[:, np.all(np.isfinite(A), axis=0) & np.any(A != 0.0, axis=0)]
-    return A / np.linalg.norm(A, axis=0) if A.shape[1] else A
+    keep = np.all(np.isfinite(A), axis=0) & np.any(A != 0.0, axis=0)
+    A = A[:, keep]
+    A = A / np.linalg.norm(A, axis=0) if A.shape[1] else A
+    return (A, keep) if with_keep else A
+
+
+#: directions drawn in the cone of the sign-constrained columns (deterministic)
+_CONE_DRAWS = 4096
 
 
 class HeldOutFit:
@@ -93,10 +101,12 @@ class HeldOutFit:
             R[a:b] = Uk - Nk @ (P @ (H - Nk.T @ Uk))
         return R
 
-    def share(self, cols: np.ndarray) -> float:
+    def share(self, cols: np.ndarray, nonneg: Optional[np.ndarray] = None) -> float:
         """Largest share (0..1) of the mean square of any signature ``cols @ beta`` (n, p)
-        that the fits leave (see :func:`unmimicked_share`)."""
-        U = _basis(cols)
+        that the fits leave (see :func:`unmimicked_share`); ``nonneg`` (p,) bool: the
+        coefficients that cannot be negative (a creep that only lengthens the cable), so
+        only signatures a term can make count."""
+        U, keep = _basis(cols, with_keep=True)
         if U.shape[1] == 0:
             return 0.0
         if self.rows is not None:
@@ -109,9 +119,27 @@ class HeldOutFit:
         ok = du > 1e-10 * max(float(du.max()), 1e-300)
         if not np.any(ok):
             return 0.0
-        W = R[:, ok] @ np.linalg.pinv(Ru[np.ix_(ok, ok)])
-        w = np.linalg.eigvalsh(W.T @ W)
-        return float(np.clip(w[-1], 0.0, 1.0))
+        Rinv = np.linalg.pinv(Ru[np.ix_(ok, ok)])
+        W = R[:, ok] @ Rinv
+        w, V = np.linalg.eigh(W.T @ W)
+        top = float(np.clip(w[-1], 0.0, 1.0))
+        sign = np.zeros(U.shape[1], bool) if nonneg is None else np.asarray(nonneg, bool)[keep]
+        if not np.any(sign[ok]):
+            return top
+        beta = Rinv @ V[:, -1]                  # the freest combination, in the columns kept
+        s_ok = sign[ok]
+        if np.all(beta[s_ok] >= -1e-12) or np.all(beta[s_ok] <= 1e-12):
+            return top
+        # the freest combination needs a sign the term cannot take: search the cone
+        Uo, Ro = U[:, ok], R[:, ok]
+        G, H = Uo.T @ Uo, Ro.T @ Ro
+        B = np.random.default_rng(0).standard_normal((Uo.shape[1], _CONE_DRAWS))
+        B = np.concatenate([B, np.eye(Uo.shape[1])], axis=1)
+        B[s_ok] = np.abs(B[s_ok])
+        num = np.einsum("ik,ij,jk->k", B, H, B)
+        den = np.einsum("ik,ij,jk->k", B, G, B)
+        good = den > 1e-12 * float(den.max())
+        return float(np.clip(np.max(num[good] / den[good]), 0.0, 1.0)) if np.any(good) else 0.0
 
 
 def unmimicked_share(nuisance: np.ndarray, cols: np.ndarray, blocks: Optional[list[np.ndarray]] = None) -> float:
@@ -177,10 +205,12 @@ def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list
                 if t.nuisance and not t.owns_nuisance:
                     d = d.without(t.nuisance)
                 cols = [d.X[mask, j] for j in range(d.p)]
+                nonneg = [bool(lo == 0.0) for lo in np.asarray(d.lower, float)[:d.p]]
                 if d.fixed is not None:
                     cols.append(d.fixed[mask])
+                    nonneg.append(False)
                 if cols:
-                    share = fitter.share(np.column_stack(cols))
+                    share = fitter.share(np.column_stack(cols), np.array(nonneg))
                     if share > best:
                         best, best_h = share, dict(h)
             need = required_gain(float(ex[c]), share_min, gain_min)
