@@ -63,6 +63,8 @@ from typing import TYPE_CHECKING, Any, Optional
 
 import numpy as np
 
+from cablesvc.jsonable import jsonable
+
 if TYPE_CHECKING:      # the twin loads the models (numba): imported where the bench runs, so
     # that building the CLI (every ``cablesvc`` command) does not pay for it
     from cablesvc.simulate.effects import Effect
@@ -429,7 +431,7 @@ def _main_realistic(args) -> int:
         res = run_realistic(args.cases, args.seed, args.fleet, progress=prog, workers=args.workers,
                             damping=args.truth_damping)
     if args.json:
-        print(json.dumps(res, indent=1, default=float))
+        print(json.dumps(jsonable(res), indent=1, default=float))   # an infinite limit as null
         return 0
     pct = lambda a, b: f"{a}/{b}" + (f" ({a / b:.0%})" if b else "")
     print(format_confusion(res))
