@@ -139,6 +139,13 @@ def test_discover_fleet_on_the_cluster_equals_serial_and_reports_the_corrupt_fil
     assert eff and eff[0]["since"] == NIGHTS[1] and eff[0]["recordings"] == 2 and eff[0]["in_latest"]
     assert summ["failed"] == [{"recording": fleet["corrupt"], "robot": None, "error": bad["error"]}]
     assert any("pulley" in line and NIGHTS[1] in line for line in summ["lines"])
+    # the terms found nowhere, with how small an effect the recordings could not show
+    ns = {x["term"]: x for x in summ["robots"][ROBOT]["not_seen"]}
+    assert "pulley" not in ns and {"creep", "sag"} <= set(ns)
+    assert all(x["recordings"] == 3 and 0 < x["median_floor_rms_N"] <= x["median_limit_rms_N"] for x in ns.values())
+    assert all(r["detection"] for r in good)
+    assert any(line.startswith(f"{ROBOT} (") and "not found, and not told from the baseline's recalibration" in line
+               for line in summ["lines"])
 
 
 def test_identify_fleet_on_the_cluster_equals_serial_and_finds_the_drifting_cable(fleet, cluster, tmp_path):
@@ -184,3 +191,24 @@ def test_fleet_refuses_one_recording_options_and_bad_inputs(fleet, capsys):
     assert code == 1 and "matches no recording" in out.err
     code, out = _cli(capsys, ["discover", str(fleet["root"] / "a"), "--workers", "0"])
     assert code == 1 and "--workers" in out.err
+
+
+def test_fleet_summary_not_seen_is_the_median_over_recordings():
+    # an infinite limit (JSON null: the recalibration mimics the whole shape) counts as
+    # infinite; a term found on the robot is not listed
+    from cablesvc.batch.summary import fleet_summary
+
+    def row(i, det, findings=()):
+        return {"status": "ok", "robot": "r", "recording": f"{i}.mcap", "start_time": NIGHTS[i], "verdict": "v",
+                "findings": list(findings), "recalibrated": [], "unexplained": [], "detection": det}
+    det = [[{"term": "sag", "min_floor_rms_N": 1.0, "min_limit_rms_N": 2.0},
+            {"term": "creep", "min_floor_rms_N": 0.1, "min_limit_rms_N": 0.3}],
+           [{"term": "sag", "min_floor_rms_N": None, "min_limit_rms_N": None}],
+           [{"term": "sag", "min_floor_rms_N": 3.0, "min_limit_rms_N": 5.0}]]
+    rows = [row(0, det[0]), row(1, det[1]),
+            row(2, det[2], [{"term": "creep", "label": "creep and settling drift", "cables": [4]}])]
+    summ = fleet_summary("discover", rows)
+    ns = summ["robots"]["r"]["not_seen"]
+    assert [x["term"] for x in ns] == ["sag"]                    # creep was found on night 2
+    assert ns[0]["recordings"] == 3 and ns[0]["median_floor_rms_N"] == 3.0 and ns[0]["median_limit_rms_N"] == 5.0
+    assert any("sag 3 / 5 N RMS" in line for line in summ["lines"])

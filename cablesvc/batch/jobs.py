@@ -16,8 +16,9 @@ Every row has ``recording`` (the path), ``status`` (``"ok"`` / ``"failed"``), ``
 in its process: the only fields that differ between two runs of the same job). A discover row adds
 ``verdict``, ``findings`` (term, label, cables, p_value), ``recalibrated`` (the cables whose
 baseline was recalibrated: the cable no longer matches its parameter file),
-``unexplained``, ``rmse_test_before`` / ``rmse_test_after`` and ``discovery`` (the whole
-JSON of ``cablesvc discover --json``). An identify row adds ``model``, ``method``,
+``unexplained``, ``detection`` (per term not named: its least floor and limit over the
+cables, :mod:`cablesvc.discover.detectability`; identified mode), ``rmse_test_before`` /
+``rmse_test_after`` and ``discovery`` (the whole JSON of ``cablesvc discover --json``). An identify row adds ``model``, ``method``,
 ``cables``, ``names``, ``parameters`` (per fitted cable the values and standard errors),
 ``rmse``, ``notes`` and ``params_toml`` (the parameter file ``--out`` would write).
 """
@@ -168,6 +169,8 @@ def discover_job(path: str, opts: dict[str, Any]) -> dict[str, Any]:
                            for f in doc["findings"]]
         row["recalibrated"] = list(doc.get("recalibration", {}).get("cables", []))
         row["unexplained"] = [{"cables": u["cables"], "variable": u["variable"]} for u in doc.get("unexplained", [])]
+        row["detection"] = [{"term": x["term"], "min_floor_rms_N": x["min_floor_rms_N"],
+                             "min_limit_rms_N": x["min_limit_rms_N"]} for x in doc.get("detection_limits", [])]
         row["rmse_test_before"] = doc["rmse_test_before"]
         row["rmse_test_after"] = doc["rmse_test_after"]
         row["discovery"] = doc

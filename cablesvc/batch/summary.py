@@ -8,7 +8,12 @@ recording that shows the item; ``recordings`` how many of the robot's recordings
 * **discover**: ``effects`` are the named physics terms per cable (the findings);
   ``drift`` the cables whose baseline had to be recalibrated (the cable no longer
   matches its parameter file: stiffness, pretension, loop area; identified mode only);
-  ``unexplained`` the cables with a residual no term explains.
+  ``unexplained`` the cables with a residual no term explains; ``not_seen`` the candidate
+  terms found in none of the robot's recordings, each with the median over the
+  recordings of its floor and limit on its best cable (the least effect the recording
+  could show beside the recalibration, with a perfect baseline and with this one's
+  model form: :mod:`cablesvc.discover.detectability`), so that "no effect found" says how
+  small an effect would have gone unseen.
 * **identify**: the reference is the robot's earliest good recording (same model and
   cables); a cable *drifts* in a later recording when one of its parameters moved by more
   than :data:`DRIFT_REL` of the reference value *and* more than :data:`DRIFT_Z` combined
@@ -21,7 +26,8 @@ recording that shows the item; ``recordings`` how many of the robot's recordings
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+import statistics
+from typing import Any, Optional, Sequence
 
 __all__ = ["DRIFT_REL", "DRIFT_Z", "fleet_summary"]
 
@@ -55,6 +61,26 @@ def _cables(cs: Sequence[int]) -> str:
     return ("cable " if len(cs) == 1 else "cables ") + ", ".join(str(c) for c in cs)
 
 
+def _median_n(values: Sequence[Optional[float]]) -> float:
+    """Median of limits [N], where None (JSON's null) is an infinite one."""
+    return float(statistics.median(math.inf if v is None else float(v) for v in values))
+
+
+def _not_seen(rs: Sequence[dict[str, Any]], found: set[str]) -> list[dict[str, Any]]:
+    by: dict[str, list[dict[str, Any]]] = {}
+    for r in rs:
+        for x in r.get("detection", []) or []:
+            if x["term"] not in found:
+                by.setdefault(x["term"], []).append(x)
+    out = [{"term": t, "recordings": len(xs), "median_floor_rms_N": _median_n([x["min_floor_rms_N"] for x in xs]),
+            "median_limit_rms_N": _median_n([x["min_limit_rms_N"] for x in xs])} for t, xs in by.items()]
+    return sorted(out, key=lambda x: -x["median_floor_rms_N"])
+
+
+def _n(v: float) -> str:
+    return "inf" if math.isinf(v) else f"{v:.2g}"
+
+
 def _discover(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
     robots: dict[str, Any] = {}
     lines: list[str] = []
@@ -78,8 +104,9 @@ def _discover(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
         effects = [{"term": t, "label": labels[t], "cable": c, **v} for (t, c), v in sorted(te.items())]
         drifts = [{"cable": c, **v} for c, v in sorted(_track(drift, latest).items())]
         unexplained = [{"cable": c, **v} for c, v in sorted(_track(unex, latest).items())]
+        not_seen = _not_seen(rs, {e["term"] for e in effects})
         robots[robot] = {"recordings": len(rs), "first_start": rs[0]["start_time"], "last_start": latest["start_time"],
-                         "effects": effects, "drift": drifts, "unexplained": unexplained,
+                         "effects": effects, "drift": drifts, "unexplained": unexplained, "not_seen": not_seen,
                          "latest_verdict": latest["verdict"]}
         head = f"{robot} ({len(rs)} recording{'s' if len(rs) != 1 else ''}, {rs[0]['start_time']} .. {latest['start_time']})"
         if not effects and not drifts and not unexplained:
@@ -96,6 +123,11 @@ def _discover(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
         if unexplained:
             lines.append(f"{head}: unexplained residual on {_cables([u['cable'] for u in unexplained])}, since "
                          f"{min(u['since'] for u in unexplained)}")
+        if not_seen:
+            lines.append(f"{head}: not found, and not told from the baseline's recalibration below (median over the "
+                         "recordings, best cable; with a perfect baseline / with this one's model form): " + "; ".join(
+                             f"{x['term']} {_n(x['median_floor_rms_N'])} / {_n(x['median_limit_rms_N'])} N RMS"
+                             for x in not_seen))
     return {"robots": robots, "lines": lines}
 
 
