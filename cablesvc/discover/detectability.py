@@ -223,12 +223,12 @@ def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list
 
 
 def _pct(share: float) -> str:
-    """A share as a percentage for words: 99.6 % reads "> 99", not "100"."""
+    """A share as a percentage for words: 99.6 % reads "99.6", not "100"."""
     v = 100.0 * share
-    if v > 99.0 and v < 100.0:
-        return "> 99"
+    if 99.0 < v < 100.0:
+        return f"{min(v, 99.9):.1f}"
     if 0.0 < v < 1.0:
-        return "< 1"
+        return f"{max(v, 0.1):.1f}"
     return f"{v:.0f}"
 
 
@@ -263,9 +263,11 @@ def describe_limits(limits: dict[tuple[str, int], dict[str, float]], skip: set[s
             words = (f"{n} ({label}): cannot be told from the baseline's recalibration on this recording "
                      f"(it mimics all of its shape)")
         else:
+            same = all(lim <= flo * (1 + 1e-9) for lim, flo in zip(lims, floors))
             words = (f"{n} ({label}): not told from the baseline's recalibration below {_range(floors)} N RMS "
-                     f"even with a perfect baseline, about {_range(lims)} N RMS with this one's model form, on "
-                     f"cables {', '.join(map(str, cables))} (the recalibration mimics "
+                     + ("even with a perfect baseline (this one's model form adds nothing to it)" if same else
+                        f"even with a perfect baseline, about {_range(lims)} N RMS with this one's model form")
+                     + f", on cables {', '.join(map(str, cables))} (the recalibration mimics "
                      f"{p_lo if p_lo == p_hi else p_lo + '-' + p_hi} % of its shape over this recording)")
         rows.append({"term": n, "cables": cables, "floor_rms_N": {str(c): v["floor_rms_N"] for c, v in cv},
                      "limit_rms_N": {str(c): v["limit_rms_N"] for c, v in cv},
