@@ -129,7 +129,7 @@ def test_the_floor_is_what_the_screen_can_name(signals):
     assert tests[2.0]["gain"] > 0.25 > tests[0.5]["gain"]
 
 
-def test_limits_in_the_discovery_report():
+def test_limits_in_the_discovery_report(tmp_path):
     # creep named beyond a recalibrated, wrong baseline: the other terms get their limits,
     # in words and in the JSON; every limit is at least the noise-only bound and they all
     # come from one required gain
@@ -159,6 +159,11 @@ def test_limits_in_the_discovery_report():
         assert "even with a perfect baseline" in row["words"]
     # the creep's own cable: the limits of every term are there too, named or not
     assert {"creep@2", "viscous@2"} <= set(d.options["limits"])
+    # and the report draws them
+    from cablesvc.discover.report import write_report
+    files = write_report(d, tmp_path / "rep")
+    assert (tmp_path / "rep" / "limits.png").stat().st_size > 10_000 and files["limits"].endswith("limits.png")
+    assert '<img src="limits.png">' in (tmp_path / "rep" / "index.html").read_text()
 
 
 def test_describe_limits_words_and_order():

@@ -7,6 +7,10 @@
 * ``term_<name>.png`` per finding: the residual left for the term against the variable
   that explains it, before (residual) and after (residual minus the term), test ticks;
 * ``overlay.png``: measured force, baseline and augmented model on the most improved cable;
+* ``limits.png`` (identified baseline): per candidate term and cable, the least effect the
+  recording could show beside the recalibration, with a perfect baseline (floor) and with
+  this one's model form (limit), against the sensor noise
+  (:mod:`cablesvc.discover.detectability`);
 * ``params.toml``: the augmented parameter file;
 * ``index.html``: the summary sentences, the tables and the figures.
 """
@@ -97,6 +101,41 @@ def _fig_overlay(d, path: Path) -> None:
     plt.close(fig)
 
 
+def _fig_limits(d, path: Path) -> bool:
+    """Floor and limit per term and cable (log scale); False when there are none."""
+    lim = d.options.get("limits") or {}
+    terms = sorted({k.split("@")[0] for k in lim})
+    if not terms:
+        return False
+    plt = _plt()
+    from matplotlib.ticker import FuncFormatter
+    m = d.residual.shape[1]
+    fig, axes = plt.subplots(len(terms), 1, figsize=(7, 1.5 * len(terms) + 1.2), sharex=True, squeeze=False)
+    i = np.arange(m)
+    named = {f.term for f in d.findings}
+    for ax, t in zip(axes[:, 0], terms):
+        fl = np.array([lim.get(f"{t}@{c}", {}).get("floor_rms_N", np.nan) for c in range(m)], float)
+        li = np.array([lim.get(f"{t}@{c}", {}).get("limit_rms_N", np.nan) for c in range(m)], float)
+        top = np.nanmax(np.where(np.isfinite(li), li, np.nan)) if np.any(np.isfinite(li)) else 1.0
+        ax.bar(i - 0.2, np.where(np.isfinite(fl), fl, 3 * top), 0.4, label="perfect baseline (floor)")
+        ax.bar(i + 0.2, np.where(np.isfinite(li), li, 3 * top), 0.4, label="this baseline's model form")
+        ax.plot(i, d.noise, "k_", ms=14, mew=2, label="sensor noise")
+        ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.yaxis.set_minor_formatter(FuncFormatter(
+            lambda v, _: f"{v:g}" if v > 0 and f"{v:.0e}"[0] in "25" else ""))
+        ax.set_ylabel(f"{t}{' (named)' if t in named else ''}\n[N RMS]", fontsize=8)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, ncol=3, loc="upper center", bbox_to_anchor=(0.5, 0.965))
+    axes[-1, 0].set_xticks(i)
+    axes[-1, 0].set_xlabel("cable")
+    fig.suptitle("least effect the recording could show beside the baseline's recalibration", fontsize=9)
+    fig.tight_layout(rect=(0, 0, 1, 0.94))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
 def write_report(d, directory: str | os.PathLike) -> dict[str, str]:
     """Write the report of discovery ``d`` into ``directory``; returns name -> path."""
     out = Path(directory)
@@ -111,6 +150,8 @@ def write_report(d, directory: str | os.PathLike) -> dict[str, str]:
     files["rmse"] = str(out / "rmse.png")
     _fig_overlay(d, out / "overlay.png")
     files["overlay"] = str(out / "overlay.png")
+    if _fig_limits(d, out / "limits.png"):
+        files["limits"] = str(out / "limits.png")
     for f in d.findings:
         if not all(c in d.final and f.term in d.final[c].contrib for c in f.cables):
             continue        # named from the wrench balance (sensor error), not a force term
@@ -139,6 +180,7 @@ def write_report(d, directory: str | os.PathLike) -> dict[str, str]:
 <h2>Findings</h2>{finds}
 <h2>Held-out RMSE</h2><table><tr><th>cable</th><th>before [N]</th><th>after [N]</th><th>noise floor [N]</th></tr>{rows}</table>
 <img src="rmse.png"><img src="overlay.png">
+{'<h2>What the recording cannot show</h2><img src="limits.png">' if "limits" in files else ''}
 <p>Files: discovery.json, params.toml (baseline with the discovered terms in [identification]).</p>
 </body></html>"""
     (out / "index.html").write_text(page)
