@@ -152,6 +152,20 @@ def test_bench_discover_scale_small(tmp_path):
     assert res["same_terms_at_every_size"]
 
 
+def test_scale_bench_counts_the_childs_own_memory_not_its_parents():
+    # on Linux a child keeps the peak RSS of the process it was forked from across the
+    # exec; the bench is run from large processes (a test session passes 2 GB), so the
+    # child's own VmHWM is what counts. Here the parent holds 400 MB more than the child.
+    import sys
+
+    from cablesvc.bench.discover_scale import _timed_child
+    ballast = np.ones(50_000_000)                        # 400 MB, touched
+    rc, out, _, _, rss = _timed_child([sys.executable, "-m", "cablesvc", "--version"])
+    assert rc == 0 and out.startswith("cablesvc")
+    assert 5 < rss < 300, rss
+    del ballast
+
+
 def _one_winch_at_a_time(path, seconds_per_cable=10.0, rate=100.0):
     """A recording (pose at home) in which cable c alone moves, a 1 mm sine around 60 N,
     during the c-th window of ``seconds_per_cable`` s (002 Sec 4's calibration, each winch

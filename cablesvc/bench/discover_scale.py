@@ -6,7 +6,9 @@ ipanema3 (8 cables) with one concealed effect (default ``pulley``), then runs
 ``cablesvc discover`` on it in a fresh child process and reports per size ``minutes``,
 ``ticks``, ``seconds`` (wall time of the child: reading, streaming, analysis; the
 generation of the recording is not timed) and ``peak_rss_mb`` (the child's own peak RSS,
-from ``os.wait4``: one child per size, so sizes do not contaminate each other), the
+``VmHWM`` written by the child at exit: one child per size, so sizes do not contaminate
+each other, and not the parent's memory, which ``os.wait4``'s ``ru_maxrss`` carries on
+Linux), the
 ``named`` terms and the streamed path's description (analysis rate, ticks kept).
 
 The recordings: ``cablesvc simulate`` holds the whole run in memory (1.5 GB and 14 s per
@@ -139,20 +141,49 @@ def cache_path(minutes: float, effect: str, seed: int, rate: float, directory: O
     return d / f"{ROBOT}_{tag}_seed{seed}_{int(rate)}hz_{minutes:g}min.mcap"
 
 
+#: runs ``cablesvc ARGS`` and, at exit, writes the process's own peak RSS (``VmHWM`` of
+#: /proc/self/status, kB) to the file named first. ``ru_maxrss`` from wait4 is no measure on
+#: Linux: the child keeps the peak RSS of the parent it was forked from across the exec, so
+#: a bench run from a large process (a test session past 2 GB) reported that process's
+#: memory as discovery's
+_CLI_CHILD = r"""
+import atexit, runpy, sys
+
+def _peak(path=sys.argv[1]):
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    with open(path, "w") as out:
+                        out.write(line.split()[1])
+    except OSError:
+        pass
+
+atexit.register(_peak)
+sys.argv = ["cablesvc"] + sys.argv[2:]
+runpy.run_module("cablesvc", run_name="__main__", alter_sys=True)
+"""
+
+
 def _timed_child(argv: list[str]) -> tuple[int, str, str, float, float]:
-    """Run ``argv`` as a fresh child; (returncode, stdout, stderr, wall seconds, its own
-    peak RSS [MB] from os.wait4, so earlier children do not count)."""
+    """Run ``argv`` (``python -m cablesvc ...``) as a fresh child; (returncode, stdout,
+    stderr, wall seconds, its own peak RSS [MB]: VmHWM written by the child itself, or
+    wait4's ru_maxrss where there is no /proc)."""
     out = tempfile.TemporaryFile("w+")
     err = tempfile.TemporaryFile("w+")
-    t0 = time.perf_counter()
-    p = subprocess.Popen(argv, stdout=out, stderr=err, text=True)
-    _, status, ru = os.wait4(p.pid, 0)
-    wall = time.perf_counter() - t0
+    with tempfile.TemporaryDirectory(prefix="cablesvc-rss-") as tmp:
+        hwm = Path(tmp) / "vmhwm_kb"
+        if argv[1:3] == ["-m", "cablesvc"]:
+            argv = [argv[0], "-c", _CLI_CHILD, str(hwm), *argv[3:]]
+        t0 = time.perf_counter()
+        p = subprocess.Popen(argv, stdout=out, stderr=err, text=True)
+        _, status, ru = os.wait4(p.pid, 0)
+        wall = time.perf_counter() - t0
+        kb = float(hwm.read_text()) if hwm.exists() else float(ru.ru_maxrss)      # Linux: kB
     p.returncode = os.waitstatus_to_exitcode(status)
     out.seek(0)
     err.seek(0)
-    rss_mb = ru.ru_maxrss / 1024.0          # Linux: kB
-    return p.returncode, out.read(), err.read(), wall, rss_mb
+    return p.returncode, out.read(), err.read(), wall, kb / 1024.0
 
 
 def run_discover_scale(minutes: list[float], *, effect: str = "pulley", seed: int = 0, rate: float = RATE,
