@@ -8,7 +8,9 @@
 ``--calib`` identifies the amplitude baseline from a calibration recording first (the same
 call as ``cablesvc identify --model amplitude``). The first line printed is the verdict.
 Prints where the residual is (cables, time, state), the terms chosen with their evidence,
-and the held-out RMSE per cable before and after; ``--report`` writes JSON, PNG figures,
+with an identified baseline what the recording cannot show beside its recalibration (per
+term not named, the least effect that could have been named), and the held-out RMSE per
+cable before and after; ``--report`` writes JSON, PNG figures,
 the augmented parameter file and an HTML page; ``--json`` prints the JSON instead of text.
 Errors are raised as :class:`~cablesvc.errors.CablesvcError`: one line (cablesvc.cli.failures),
 exit code 1. Several recordings, a directory or a glob run as a
