@@ -127,6 +127,8 @@ def test_the_floor_is_what_the_screen_can_name(signals):
         tests[k] = sel.tests[("sag", c)]
         assert ("sag" in sel.named() and c in sel.named()["sag"]) == (k > 1)
     assert tests[2.0]["gain"] > 0.25 > tests[0.5]["gain"]
+    # no test block (a recording too short for one): nothing to say, no error
+    assert detection_limits(s, [sag], Recalibration(), [], noise, 0.0, 0.9, 0.25) == {}
 
 
 def test_limits_in_the_discovery_report(tmp_path):

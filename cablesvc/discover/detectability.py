@@ -179,6 +179,8 @@ def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list
     :class:`~cablesvc.discover.select.DesignCache` (the screen's), so designs are built once."""
     ex = np.broadcast_to(np.asarray(excess, float), (s.m,))
     out: dict[tuple[str, int], dict[str, float]] = {}
+    if not blocks:                  # too short for a single test block: nothing to say
+        return out
     mask = np.zeros(s.n, bool)
     for b in blocks:
         mask[b] = True
