@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from cablesvc.config import load_robot
-from cablesvc.discover.detectability import (describe_limits, detection_limits, required_gain,
-                                             unmimicked_share)
+from cablesvc.discover.detectability import describe_limits, detection_limits, unmimicked_share
+from cablesvc.discover.screen import BlockScreen
 from cablesvc.discover.pipeline import baseline_params, build_signals, split_blocks
 from cablesvc.simulate import TruthConfig, simulate_recording
 
@@ -78,14 +78,13 @@ def test_held_out_share_is_at_least_the_in_sample_one():
 
 
 def test_required_gain_follows_the_screen_rule():
-    from cablesvc.discover.screen import BlockScreen
-    assert required_gain(0.0, 0.9, 0.25) == 0.25
-    assert required_gain(-1.0, 0.9, 0.25) == 0.25
-    assert required_gain(1.0, 0.9, 0.25) == pytest.approx(9.0)
-    # at exactly the required gain the screen's share condition holds, just below it fails
     screen = BlockScreen(alpha=0.05, share_min=0.9, gain_min=0.25)
+    assert screen.required_gain(0.0) == 0.25
+    assert screen.required_gain(-1.0) == 0.25
+    assert screen.required_gain(1.0) == pytest.approx(9.0)
+    # at exactly the required gain the screen's share condition holds, just below it fails
     for excess in (0.05, 0.5, 3.0):
-        g = required_gain(excess, 0.9, 0.25)
+        g = screen.required_gain(excess)
         assert screen._ok({"gain": g * (1 + 1e-9), "before": 1.0 + excess + g}, 0.001)
         assert not screen._ok({"gain": 0.97 * g, "before": 1.0 + excess + 0.97 * g}, 0.001)
 
@@ -113,7 +112,7 @@ def test_the_floor_is_what_the_screen_can_name(signals):
     sag, c, sigma = LIBRARY["sag"], 3, 0.1
     noise = np.full(s.m, sigma)
     blocks = block_ids(s.t, 1.25, train | valid)          # the screen's test units
-    lim = detection_limits(s, [sag], Recalibration(), blocks, noise, 0.0, 0.9, 0.25)[("sag", c)]
+    lim = detection_limits(s, [sag], Recalibration(), blocks, noise, 0.0, BlockScreen())[("sag", c)]
     assert 0.0 < lim["free"] < 1.0 and math.isfinite(lim["limit_rms_N"])
     assert lim["limit_rms_N"] == lim["floor_rms_N"] == pytest.approx(sigma * math.sqrt(0.25 / lim["free"]))
     shape = sag.design(s, c, lim["hyper"]).fixed
@@ -128,7 +127,7 @@ def test_the_floor_is_what_the_screen_can_name(signals):
         assert ("sag" in sel.named() and c in sel.named()["sag"]) == (k > 1)
     assert tests[2.0]["gain"] > 0.25 > tests[0.5]["gain"]
     # no test block (a recording too short for one): nothing to say, no error
-    assert detection_limits(s, [sag], Recalibration(), [], noise, 0.0, 0.9, 0.25) == {}
+    assert detection_limits(s, [sag], Recalibration(), [], noise, 0.0, BlockScreen()) == {}
 
 
 def test_limits_in_the_discovery_report(tmp_path):
@@ -156,7 +155,7 @@ def test_limits_in_the_discovery_report(tmp_path):
             assert lim >= floor >= sigma * math.sqrt(0.25) * (1 - 1e-9)
             if math.isfinite(lim):      # one required gain each: a perfect baseline's, the model form's
                 assert (floor / sigma) ** 2 * free == pytest.approx(0.25)
-                assert (lim / sigma) ** 2 * free == pytest.approx(required_gain(excess, 0.9, 0.25))
+                assert (lim / sigma) ** 2 * free == pytest.approx(BlockScreen().required_gain(excess))
         assert row["min_floor_rms_N"] == min(row["floor_rms_N"].values())
         assert "even with a perfect baseline" in row["words"]
     # the creep's own cable: the limits of every term are there too, named or not

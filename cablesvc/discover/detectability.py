@@ -29,7 +29,8 @@ force enters):
   baseline's model form; the pipeline takes the median over the recording's cables,
   since a cable's own excess holds its own effect). An effect of RMS E leaves about
   g = free E^2 / sigma^2 after the recalibration, so it is named only when
-  E >= sigma sqrt(need / free), need = max(gain_min, share_min excess / (1 - share_min)).
+  E >= sigma sqrt(need / free), need = max(gain_min, share_min excess / (1 - share_min))
+  (:meth:`~cablesvc.discover.screen.BlockScreen.required_gain`, beside the rule it inverts).
   With a perfect baseline (excess 0) that is the floor, sigma sqrt(gain_min / free):
   below it no baseline, however good, lets the screen name the term. The limit with the
   baseline's model form is an estimate for a typical cable (the affected cable's own
@@ -49,9 +50,11 @@ from typing import Any, Optional
 
 import numpy as np
 
+from cablesvc.discover.screen import BlockScreen
+from cablesvc.discover.select import DesignCache
 from cablesvc.models.terms import Signals, Term
 
-__all__ = ["HeldOutFit", "unmimicked_share", "detection_limits", "describe_limits", "required_gain"]
+__all__ = ["HeldOutFit", "unmimicked_share", "detection_limits", "describe_limits"]
 
 
 def _basis(A: np.ndarray, with_keep: bool = False):
@@ -154,19 +157,9 @@ def unmimicked_share(nuisance: np.ndarray, cols: np.ndarray, blocks: Optional[li
     return HeldOutFit(nuisance, blocks).share(cols)
 
 
-def required_gain(excess: float, share_min: float, gain_min: float) -> float:
-    """The least held-out gain [noise variances] the screen names, where the recalibrated
-    baseline leaves ``excess`` noise variances beyond the noise on an effect-free cable:
-    max(gain_min, share_min excess / (1 - share_min))."""
-    ex = max(float(excess), 0.0)
-    if share_min >= 1.0:
-        return math.inf
-    return max(float(gain_min), share_min * ex / (1.0 - share_min))
-
-
 def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list[np.ndarray], noise: np.ndarray,
-                     excess: Any, share_min: float, gain_min: float,
-                     cache: Optional[Any] = None) -> dict[tuple[str, int], dict[str, float]]:
+                     excess: Any, screen: BlockScreen,
+                     cache: Optional[DesignCache] = None) -> dict[tuple[str, int], dict[str, float]]:
     """Per (term, cable) on which the term applies: ``free`` (share of its signature the
     recalibration ``nuisance`` cannot mimic on held-out ``blocks``, the screen's test units:
     index arrays of ticks), ``floor_rms_N`` and ``limit_rms_N`` (the smallest effect RMS
@@ -175,12 +168,15 @@ def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list
     is freest).
     ``noise`` (m,) [N]; ``excess`` [noise variances] what the recalibrated baseline leaves
     beyond the noise on an effect-free cable, per cable (m,) or one value for all;
-    ``share_min`` and ``gain_min`` the screen's (:class:`~cablesvc.discover.screen.BlockScreen`). ``cache``: a
-    :class:`~cablesvc.discover.select.DesignCache` (the screen's), so designs are built once."""
+    ``screen`` the :class:`~cablesvc.discover.screen.BlockScreen` whose rule the limits invert
+    (:meth:`~cablesvc.discover.screen.BlockScreen.required_gain`); ``cache`` its
+    :class:`~cablesvc.discover.select.DesignCache`, so designs are built once."""
     ex = np.broadcast_to(np.asarray(excess, float), (s.m,))
     out: dict[tuple[str, int], dict[str, float]] = {}
     if not blocks:                  # too short for a single test block: nothing to say
         return out
+    cache = cache if cache is not None else DesignCache()
+    floor = screen.required_gain(0.0)               # a perfect baseline
     mask = np.zeros(s.n, bool)
     for b in blocks:
         mask[b] = True
@@ -189,11 +185,9 @@ def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list
     for b in blocks:
         local.append(pos[np.asarray(b, int)])
 
-    def design(t: Term, c: int, h: dict[str, float]):
-        return cache.get(t, s, c, h) if cache is not None else t.design(s, c, h)
-
     for c in range(s.m):
-        nd = design(nuisance, c, {})
+        need = screen.required_gain(float(ex[c]))
+        nd = cache.get(nuisance, s, c, {})
         N = nd.X[mask]
         if nd.fixed is not None:
             N = np.column_stack([N, nd.fixed[mask]])
@@ -203,9 +197,7 @@ def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list
                 continue
             best, best_h = 0.0, {}
             for h in t.grid(s):
-                d = design(t, c, h)
-                if t.nuisance and not t.owns_nuisance:
-                    d = d.without(t.nuisance)
+                d = cache.get(t, s, c, h, strip=True)         # without its generic (nuisance) columns
                 cols = [d.X[mask, j] for j in range(d.p)]
                 nonneg = [bool(lo == 0.0) for lo in np.asarray(d.lower, float)[:d.p]]
                 if d.fixed is not None:
@@ -215,8 +207,6 @@ def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list
                     share = fitter.share(np.column_stack(cols), np.array(nonneg))
                     if share > best:
                         best, best_h = share, dict(h)
-            need = required_gain(float(ex[c]), share_min, gain_min)
-            floor = required_gain(0.0, share_min, gain_min)
             lim, flo = ((float(noise[c]) * math.sqrt(need / best), float(noise[c]) * math.sqrt(floor / best))
                         if best > 0 else (math.inf, math.inf))
             out[(t.name, c)] = {"free": best, "floor_rms_N": flo, "limit_rms_N": lim, "hyper": best_h,

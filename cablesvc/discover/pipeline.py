@@ -790,8 +790,7 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
         before_c.setdefault(c, []).append(v["before"])
     excess_c = np.array([max(float(np.median(b)) - 1.0, 0.0) for b in before_c.values()])
     model_form_excess = float(np.median(excess_c)) if excess_c.size else 0.0
-    limits = detection_limits(s, cands, nuis, blocks, noise, model_form_excess, screen.share_min,
-                              screen.gain_min, cache)
+    limits = detection_limits(s, cands, nuis, blocks, noise, model_form_excess, screen, cache)
     skip = set(named) | ({lag.name} if (eq["holds"] and lag is not None) else set())
     detection = describe_limits(limits, skip=skip, labels={t.name: t.label for t in cands})
     sel_info = {"tests": {f"{n}@{c}": dict(v) for (n, c), v in tests.items()},

@@ -55,6 +55,7 @@ where one remains (:func:`cablesvc.discover.pipeline.discover`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
@@ -96,6 +97,16 @@ class BlockScreen:
     def _ok(self, test: dict[str, float], p: float) -> bool:
         return (p < self.alpha and test["gain"] >= self.gain_min
                 and test["gain"] >= self.share_min * max(test["before"] - 1.0, 0.0))
+
+    def required_gain(self, excess: float) -> float:
+        """The least held-out gain [noise variances] :meth:`_ok` accepts for a term added on
+        a cable where the nuisance leaves ``excess`` noise variances beyond the noise
+        (before = 1 + excess + gain): max(gain_min, share_min excess / (1 - share_min))
+        (:mod:`cablesvc.discover.detectability`)."""
+        ex = max(float(excess), 0.0)
+        if self.share_min >= 1.0:
+            return math.inf
+        return max(self.gain_min, self.share_min * ex / (1.0 - self.share_min))
 
     def select(self, s: Signals, r: np.ndarray, terms: list[Term], train: np.ndarray, valid: np.ndarray,
                noise: Optional[np.ndarray] = None, base: Optional[list[Term]] = None,
