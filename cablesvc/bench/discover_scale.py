@@ -141,23 +141,18 @@ def cache_path(minutes: float, effect: str, seed: int, rate: float, directory: O
     return d / f"{ROBOT}_{tag}_seed{seed}_{int(rate)}hz_{minutes:g}min.mcap"
 
 
-#: runs ``cablesvc ARGS`` and, at exit, writes the process's own peak RSS (``VmHWM`` of
-#: /proc/self/status, kB) to the file named first. ``ru_maxrss`` from wait4 is no measure on
-#: Linux: the child keeps the peak RSS of the parent it was forked from across the exec, so
-#: a bench run from a large process (a test session past 2 GB) reported that process's
-#: memory as discovery's
+#: runs ``cablesvc ARGS`` and, at exit, writes the process's own peak RSS
+#: (:func:`cablesvc.bench.memory.own_peak_kb`, kB) to the file named first. ``ru_maxrss``
+#: from wait4 is no measure on Linux: the child keeps the peak RSS of the parent it was
+#: forked from across the exec, so a bench run from a large process (a test session past
+#: 2 GB) reported that process's memory as discovery's
 _CLI_CHILD = r"""
 import atexit, runpy, sys
+from cablesvc.bench.memory import own_peak_kb
 
 def _peak(path=sys.argv[1]):
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    with open(path, "w") as out:
-                        out.write(line.split()[1])
-    except OSError:
-        pass
+    with open(path, "w") as out:
+        out.write(str(own_peak_kb()))
 
 atexit.register(_peak)
 sys.argv = ["cablesvc"] + sys.argv[2:]
@@ -167,8 +162,8 @@ runpy.run_module("cablesvc", run_name="__main__", alter_sys=True)
 
 def _timed_child(argv: list[str]) -> tuple[int, str, str, float, float]:
     """Run ``argv`` (``python -m cablesvc ...``) as a fresh child; (returncode, stdout,
-    stderr, wall seconds, its own peak RSS [MB]: VmHWM written by the child itself, or
-    wait4's ru_maxrss where there is no /proc)."""
+    stderr, wall seconds, its own peak RSS [MB] as the child writes it at exit, or wait4's
+    ru_maxrss when it wrote none)."""
     out = tempfile.TemporaryFile("w+")
     err = tempfile.TemporaryFile("w+")
     with tempfile.TemporaryDirectory(prefix="cablesvc-rss-") as tmp:
@@ -179,7 +174,7 @@ def _timed_child(argv: list[str]) -> tuple[int, str, str, float, float]:
         p = subprocess.Popen(argv, stdout=out, stderr=err, text=True)
         _, status, ru = os.wait4(p.pid, 0)
         wall = time.perf_counter() - t0
-        kb = float(hwm.read_text()) if hwm.exists() else float(ru.ru_maxrss)      # Linux: kB
+        kb = float(hwm.read_text()) if hwm.exists() else float(ru.ru_maxrss)      # kB; no file: it died early
     p.returncode = os.waitstatus_to_exitcode(status)
     out.seek(0)
     err.seek(0)

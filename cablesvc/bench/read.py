@@ -88,21 +88,10 @@ def _write(path: Path, encoding: str, minutes: float, rate: float, cables: int) 
 
 
 _CHILD = r"""
-import hashlib, json, resource, sys, time
+import hashlib, json, sys, time
 import numpy as np
+from cablesvc.bench.memory import own_peak_kb as peak_kb    # not the writer's memory
 from cablesvc.recording import read_recording
-
-def peak_kb():
-    # VmHWM: this process's own peak RSS (ru_maxrss on Linux keeps the parent's peak at the
-    # fork across the exec, which would count the writer's memory)
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1])
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 
 before = peak_kb()
 t0 = time.perf_counter()
