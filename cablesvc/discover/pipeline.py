@@ -167,6 +167,9 @@ class Finding:
     #: per cable named, other cables that explain the same evidence as well (the balance
     #: cannot place a sensor error on one set of cables); empty where the placement is clear
     or_cables: dict[int, list[int]] = field(default_factory=dict)
+    #: cables where the term was named because it was named on the robot's other cables
+    #: (:mod:`cablesvc.discover.screen`, step 2: Holm over those tries, a lower share)
+    extended: list[int] = field(default_factory=list)
 
     @property
     def p_value(self) -> Optional[float]:
@@ -184,6 +187,9 @@ class Finding:
                    "beyond the noise")
         if self.evidence:
             ev += f"; {self.evidence}"
+        if self.extended:
+            ev += (f"; on cable{'s' if len(self.extended) > 1 else ''} {', '.join(map(str, self.extended))} "
+                   "tried as a mechanism already named on this robot (a lower share, its own test)")
         return (f"{self.label}: the residual follows {self.variable} on cable{'s' if len(self.cables) > 1 else ''} "
                 f"{cs} ({ev}, model: {self.equation})")
 
@@ -357,7 +363,7 @@ class Discovery:
                           "params": {str(k): v for k, v in f.params.items()}, "sentence": f.sentence(),
                           "p": {str(k): v for k, v in f.p.items()}, "p_value": f.p_value,
                           "share": {str(k): v for k, v in f.share.items()}, "evidence": f.evidence,
-                          "or_cables": {str(k): v for k, v in f.or_cables.items()}}
+                          "or_cables": {str(k): v for k, v in f.or_cables.items()}, "extended": f.extended}
                          for f in self.findings],
             "verdict": self.verdict(),
             "recalibration": self.recalibration,
@@ -608,6 +614,11 @@ UNEXPLAINED_OVER_TYPICAL = 4.0
 SHARE_MIN = 0.9
 #: ... and the least held-out gain [noise variances] of a named term
 GAIN_MIN = 0.25
+#: the share a term already named on another cable of the robot must explain on a further
+#: cable (Holm over those tries only; :mod:`.screen`, step 2) ...
+SHARE_ROBOT = 0.5
+#: ... and its least gain there, as of any term named beside another on one cable [noise variances]
+GAIN_FURTHER = 1.0
 
 
 def _finding(t: Term, cables: list[int], s: Signals, r: np.ndarray, final: dict[int, Fit], full: dict[int, Fit],
@@ -661,7 +672,8 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     # BlockScreen passed in is used with its own options, any other selector is for the
     # exact-baseline mode, where every residual is physics
     screen = (selector if isinstance(selector, BlockScreen)
-              else BlockScreen(alpha=ALPHA, share_min=SHARE_MIN, gain_min=GAIN_MIN))
+              else BlockScreen(alpha=ALPHA, share_min=SHARE_MIN, gain_min=GAIN_MIN, share_robot=SHARE_ROBOT,
+                                    gain_further=GAIN_FURTHER))
     cache = DesignCache()
     # the measured forces' equilibrium (002 eq 2) comes first: it needs no cable model. A
     # force channel that lags breaks the balance, and no error of the cable law can; where
@@ -671,8 +683,11 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     outside: dict[tuple[str, int], dict[str, Any]] = {}
     lag = next((u for u in cands if u.delays_input), None)
     if eq["holds"] and lag is not None:          # the screen keeps those on cables the term applies to
+        lo, hi = lag.refine_bounds
         for c, d in eq["delay"].items():
-            outside[(lag.name, int(c))] = {"source": "equilibrium", **d}
+            # the lag the balance measured is the term's own (held in the screen's fits)
+            outside[(lag.name, int(c))] = {"source": "equilibrium", **d,
+                                           "hyper": {lag.refine_hyper: float(min(max(d["tau_s"], lo), hi))}}
     # test units: half a split block
     sel = screen.select(s, r, cands, train, valid, noise=noise, base=[nuis], cache=cache, block=block / 2.0,
                         evidence=outside)
@@ -700,10 +715,12 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
         for u in kept[c][1:]:
             named.setdefault(u.name, []).append(c)
     findings = [_finding(next(u for u in cands if u.name == n), cs, s, r, final, full, test,
-                         {c: outside[(n, c)]["p"] if (n, c) in outside else adj[(n, c)] for c in cs},
+                         {c: outside[(n, c)]["p"] if (n, c) in outside else sel.joint.get((n, c), tests[(n, c)])["p_holm"]
+                          for c in cs},
                          {c: sel.joint.get((n, c), tests[(n, c)])["excess_share"] for c in cs})
                 for n, cs in named.items()]
     for f in findings:
+        f.extended = [c for c in f.cables if sel.joint.get((f.term, c), {}).get("robot")]
         lagging = [c for c in f.cables if (f.term, c) in outside]
         if lagging:
             f.evidence = ("the measured forces balance the platform only with the reading of cable"
