@@ -617,8 +617,9 @@ GAIN_MIN = 0.25
 #: the share a term already named on another cable of the robot must explain on a further
 #: cable (Holm over those tries only; :mod:`.screen`, step 2) ...
 SHARE_ROBOT = 0.5
-#: ... and its least gain there, as of any term named beside another on one cable [noise variances]
-GAIN_FURTHER = 1.0
+#: ... and its least gain there, as of any term named beside another on one cable [noise
+#: variances; RMS sqrt(3) x the noise]
+GAIN_FURTHER = 3.0
 
 
 def _finding(t: Term, cables: list[int], s: Signals, r: np.ndarray, final: dict[int, Fit], full: dict[int, Fit],
