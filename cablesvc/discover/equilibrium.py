@@ -47,7 +47,7 @@ along cable i's column of A^T. :func:`equilibrium_check` therefore
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -300,33 +300,30 @@ def equilibrium_check(geom: Any, t: np.ndarray, position: np.ndarray, orientatio
         cur = loo_of(chosen, taus)
     # both at once on a cable is kept only where each part earns its place: where the lag
     # alone (or the sensor alone) balances as well on held-out blocks (not worse by MIN_GAIN
-    # at p < ALPHA), the simpler explanation is reported
-    # (and where what is left of it then adds nothing, nothing is)
+    # at p < ALPHA), that part is reported, and where nothing balances as well as that part,
+    # nothing is
+    def as_well(alt: list[tuple[int, str]], tk: dict[int, float], test) -> Optional[list[np.ndarray]]:
+        e_alt = loo_of(alt, tk)
+        g = gains(e_alt, cur)                            # > 0: the simpler one balances worse
+        return None if (float(np.mean(g)) >= MIN_GAIN and test(g)[1] < ALPHA) else e_alt
+
     for i, kind in list(chosen):
         if kind != "sensor+delay":
             continue
-        key = (i, kind)
-        for part, test in (("delay", t_test), ("sensor", signed_rank_test), (None, None)):
-            if part is None:                             # what is left: one part, or nothing
-                if key[1] == kind:
-                    break
-                test = t_test if key[1] == "sensor" else signed_rank_test
-            alt = [k if k != key else (i, part) for k in chosen if part is not None or k != key]
-            tk = dict(taus)
-            if part == "delay":
-                tk[i] = fit_lag(i, [k for k in alt if k != (i, part)], {j: v for j, v in taus.items() if j != i})
-            else:
-                tk.pop(i, None)
-            e_alt = loo_of(alt, tk)
-            g = gains(e_alt, cur)                        # > 0: the simpler one balances worse
-            if not (float(np.mean(g)) >= MIN_GAIN and test(g)[1] < ALPHA):
-                p_key = ps.pop(key)
-                if part is not None:
-                    ps[(i, part)] = p_key
+        for part, test in (("delay", t_test), ("sensor", signed_rank_test)):
+            alt = [k if k != (i, kind) else (i, part) for k in chosen]
+            rest = {j: v for j, v in taus.items() if j != i}
+            tk = {**rest, i: fit_lag(i, [k for k in alt if k != (i, part)], rest)} if part == "delay" else rest
+            e_alt = as_well(alt, tk, test)
+            if e_alt is not None:
+                ps[(i, part)] = ps.pop((i, kind))
                 chosen, taus, cur = alt, tk, e_alt
-                if part is None:
-                    break
-                key = (i, part)
+                alt = [k for k in chosen if k != (i, part)]
+                e_alt = as_well(alt, rest, signed_rank_test if part == "delay" else t_test)
+                if e_alt is not None:
+                    ps.pop((i, part))
+                    chosen, taus, cur = alt, rest, e_alt
+                break
     ratio = float(np.mean(np.concatenate(cur)) / r)
     # which cable? With more cables than wrench rows, offsets on several cables can leave
     # nearly the wrench residual one offset on another cable leaves, over a trajectory whose

@@ -697,7 +697,6 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     hyp = {c: dict(sel.fits[c].hyper) for c in range(m)}
     kept = {c: list(sel.fits[c].terms) for c in range(m)}
     tries = sel.tries
-    adj = {k: v["p_holm"] for k, v in sel.tests.items()}
     tests = sel.tests
 
     final: dict[int, Fit] = {}
@@ -715,13 +714,14 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     for c in range(m):
         for u in kept[c][1:]:
             named.setdefault(u.name, []).append(c)
+    # the test that named (term, cable): beside other terms or on a further cable, else alone
+    decided = {(n, c): sel.joint.get((n, c), tests[(n, c)]) for n, cs in named.items() for c in cs}
     findings = [_finding(next(u for u in cands if u.name == n), cs, s, r, final, full, test,
-                         {c: outside[(n, c)]["p"] if (n, c) in outside else sel.joint.get((n, c), tests[(n, c)])["p_holm"]
-                          for c in cs},
-                         {c: sel.joint.get((n, c), tests[(n, c)])["excess_share"] for c in cs})
+                         {c: outside[(n, c)]["p"] if (n, c) in outside else decided[(n, c)]["p_holm"] for c in cs},
+                         {c: decided[(n, c)]["excess_share"] for c in cs})
                 for n, cs in named.items()]
     for f in findings:
-        f.extended = [c for c in f.cables if sel.joint.get((f.term, c), {}).get("robot")]
+        f.extended = [c for c in f.cables if decided[(f.term, c)].get("robot")]
         lagging = [c for c in f.cables if (f.term, c) in outside]
         if lagging:
             f.evidence = ("the measured forces balance the platform only with the reading of cable"

@@ -130,10 +130,13 @@ class BlockScreen:
         self.share_robot = float(share_robot)
         self.gain_further = float(gain_further)
 
-    def _ok(self, test: dict[str, float], p: float, share: Optional[float] = None) -> bool:
+    def _ok(self, test: dict[str, float], p: float, share: Optional[float] = None, further: bool = False) -> bool:
+        """The screen's rule; ``further``: a term beside another on its cable, or on a
+        further cable, which must also carry ``gain_further``."""
         share = self.share_min if share is None else share
         return (p < self.alpha and test["gain"] >= self.gain_min
-                and test["gain"] >= share * max(test["before"] - 1.0, 0.0))
+                and test["gain"] >= share * max(test["before"] - 1.0, 0.0)
+                and (not further or test["gain"] >= self.gain_further))
 
     def required_gain(self, excess: float) -> float:
         """The least held-out gain [noise variances] :meth:`_ok` accepts for a term added on
@@ -210,8 +213,7 @@ class BlockScreen:
         for k, v in tests.items():
             v["p_holm"] = adj[k]
             # beside a term the outside evidence placed on the cable, a term is a further one
-            beside = bool(pre[k[1]]) and k not in evidence
-            v["passed"] = (self._ok(v, adj[k]) and (not beside or v["gain"] >= self.gain_further)) or k in evidence
+            v["passed"] = self._ok(v, adj[k], further=bool(pre[k[1]])) or k in evidence
             if k in evidence:
                 v["evidence"] = dict(evidence[k])
 
@@ -226,11 +228,17 @@ class BlockScreen:
             hk[c].append(h)
             steps.setdefault(n, []).append(c)
 
+        e_kept: dict[tuple[int, tuple[str, ...]], list[np.ndarray]] = {}
+
         def beside(n: str, c: int) -> tuple[dict[str, Any], dict[str, float]]:
-            # term n tested against what the terms cable c keeps leave (held-out blocks)
+            # term n tested against what the terms cable c keeps leave (held-out blocks;
+            # those errors computed once per set of kept terms)
             if not kept[c]:
                 return dict(tests[(n, c)]), hyper[(n, c)]
-            e0 = loo_errors(s, c, r[:, c], base + kept[c], hb + hk[c], blocks, cache)
+            now = (c, tuple(t.name for t in kept[c]))
+            if now not in e_kept:
+                e_kept[now] = loo_errors(s, c, r[:, c], base + kept[c], hb + hk[c], blocks, cache)
+            e0 = e_kept[now]
             f = fit_terms(s, c, r[:, c], base + kept[c] + [by_name[n]], train, hypers=hb + hk[c] + [None],
                           cache=cache)
             h = f.hyper[n]
@@ -242,7 +250,7 @@ class BlockScreen:
             # correction at the screen's full count of tries keeps it as strict as the first
             jt, h = beside(n, c)
             jt["p_holm"] = min(1.0, jt["p"] * tries)
-            jt["passed"] = self._ok(jt, jt["p_holm"]) and jt["gain"] >= self.gain_further
+            jt["passed"] = self._ok(jt, jt["p_holm"], further=True)
             joint[(n, c)] = jt
             if jt["passed"]:
                 keep(n, c, h)
@@ -270,13 +278,13 @@ class BlockScreen:
             placed = {n for (n, _c) in evidence}
             found = [n for n in steps if n not in placed and n in by_name]
             ext = {(n, c): beside(n, c) for n in found for c in range(m)
-                   if by_name[n] not in kept[c] and by_name[n].applies(s, c) and (n, c) in tests}
+                   if by_name[n] not in kept[c] and (n, c) in tests}     # tests: where it applies
             adj_e = holm({k: v[0]["p"] for k, v in ext.items()}, len(ext)) if ext else {}
             best: dict[int, tuple[float, str, dict[str, float]]] = {}
             for (n, c), (jt, h) in ext.items():
                 jt["p_holm"] = adj_e[(n, c)]
                 jt["robot"] = True
-                jt["passed"] = self._ok(jt, jt["p_holm"], self.share_robot) and jt["gain"] >= self.gain_further
+                jt["passed"] = self._ok(jt, jt["p_holm"], self.share_robot, further=True)
                 joint[(n, c)] = jt
                 if jt["passed"] and (c not in best or jt["gain"] > best[c][0]):
                     best[c] = (jt["gain"], n, h)
