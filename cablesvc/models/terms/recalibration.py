@@ -117,7 +117,8 @@ class Recalibration(Term):
 
     def design(self, s, c, h):
         d = super().design(s, c, h)
-        return d if d.refs.get("has_A", 1.0) else d.without(("K1_A", "d_A"))
+        d.held = _HELD
+        return d if d.refs.get("has_A", 1.0) else d.without(_HELD)
 
     def evidence(self, s, c, h):
         return s.f0[:, c]

@@ -95,6 +95,10 @@ class Design:
     dropped: tuple[str, ...] = ()
     #: reference values the columns took from the training ticks (:meth:`Term.refs`)
     refs: dict = field(default_factory=dict)
+    #: columns held within the range they took on the ticks they were fitted on (an
+    #: empirical correction with no law outside its support); a leave-one-block-out fit
+    #: holds them within the range of its own fitted ticks (:func:`cablesvc.discover.evidence.loo_errors`)
+    held: tuple[str, ...] = ()
 
     @property
     def p(self) -> int:
@@ -108,14 +112,14 @@ class Design:
             return self
         return Design(fixed=self.fixed, X=self.X[:, keep], names=tuple(self.names[i] for i in keep),
                       units=tuple(self.units[i] for i in keep), lower=self.lower[keep], upper=self.upper[keep],
-                      dropped=self.dropped + gone, refs=self.refs)
+                      dropped=self.dropped + gone, refs=self.refs, held=tuple(n for n in self.held if n not in gone))
 
     def only(self, names: tuple[str, ...]) -> "Design":
         """Only the columns ``names`` (no fixed part)."""
         keep = [i for i, n in enumerate(self.names) if n in names]
         return Design(fixed=None, X=self.X[:, keep], names=tuple(self.names[i] for i in keep),
                       units=tuple(self.units[i] for i in keep), lower=self.lower[keep], upper=self.upper[keep],
-                      refs=self.refs)
+                      refs=self.refs, held=tuple(n for n in self.held if n in names))
 
 
 def make_design(cols: list[np.ndarray], names, units, lower=None, upper=None, fixed=None,
