@@ -236,7 +236,7 @@ def test_block_screen_names_a_term_only_where_it_explains_most_of_the_residual()
     assert sel.named() == {"viscous": [2]}
     t2, t5 = sel.tests[("viscous", 2)], sel.tests[("viscous", 5)]
     assert t2["passed"] and t2["share"] > 0.8 and t2["p_holm"] < 0.05
-    assert 0.2 < t5["share"] < 0.8 and t5["gain"] > 5.0 and not t5["passed"]
+    assert t5["share"] < 0.8 and t5["gain"] > 1.0 and not t5["passed"]
     # without the share rule and the test, the gain alone would name it on cable 5 too
     loose = BlockScreen(alpha=1.01, share_min=0.0).select(s, r, [LIBRARY["viscous"]], train, valid, noise=noise,
                                                            base=[Recalibration()])
@@ -337,7 +337,7 @@ def test_block_screen_tries_a_named_mechanism_on_the_robots_other_cables():
     r = 0.1 * np.random.default_rng(6).standard_normal(s.y.shape)
     r[:, 2] += 0.5 * _unit(s.v[:, 2])
     u = s.v[:, 5] / np.abs(s.v[:, 5]).max()
-    r[:, 5] += 0.5 * _unit(s.v[:, 5]) + 1.2 * _unit(np.sign(u) * np.abs(u) ** 0.3)
+    r[:, 5] += 0.5 * _unit(s.v[:, 5]) + 0.6 * _unit(np.sign(u) * np.abs(u) ** 0.3)
     args = (s, r, [LIBRARY["viscous"]], train, valid)
     kw = dict(noise=np.full(s.m, 0.1), base=[Recalibration()])
     sel = BlockScreen(share_robot=0.5).select(*args, **kw)
@@ -371,3 +371,39 @@ def test_block_screen_holds_the_lag_the_balance_measured():
     free = BlockScreen().select(s, r, terms, train, valid, evidence={
         ("deadtime", 4): {"source": "balance", "p": 1e-6}}, **kw)
     assert free.fits[4].hyper["deadtime"]["tau"] < 0.02 and free.named() == {"deadtime": [4]}
+
+
+def test_held_out_recalibration_holds_its_amplitude_correction_where_no_other_block_went():
+    # cable 3: the reversal amplitude is zero except in one block (one large swing), and the
+    # residual is sensor noise only. Left out, that block lies beyond what the fold's fit
+    # saw: the recalibration's amplitude correction must be held at its edge there, as the
+    # fitted model holds it, not extrapolated (a term that tamed the extrapolation looked
+    # like most of the residual and was named on a control of the realistic bench)
+    from cablesvc.discover.evidence import block_ids, loo_errors
+    from cablesvc.models.terms import Recalibration
+
+    class Unheld(Recalibration):
+        def design(self, s, c, h):
+            d = super().design(s, c, h)
+            d.held = ()
+            return d
+
+    s, train, valid = _screen_signals()
+    c = 3
+    blocks = block_ids(s.t, 1.25, train | valid)
+    lone = blocks[7]
+    a = np.zeros(s.n)
+    a[lone] = 2e-3 * (1.0 + 0.5 * np.sin(np.linspace(0.0, 6.0, lone.size)))
+    a[blocks[3]] = 1e-5
+    s.amplitude = s.amplitude.copy()
+    s.amplitude[:, c] = a
+    r = 0.1 * np.random.default_rng(2).standard_normal(s.n)
+
+    def per_block(term):
+        return np.array([np.mean(e ** 2) / 0.01 for e in loo_errors(s, c, r, [term], [{}], blocks)])
+
+    held, unheld = per_block(Recalibration()), per_block(Unheld())
+    assert unheld[7] > 100.0                       # extrapolated: what the old estimate did
+    assert held[7] < 1.5                           # held: the noise
+    others = [k for k in range(len(blocks)) if k != 7]
+    assert np.allclose(held[others], unheld[others], rtol=0.2)   # blocks within the support barely change

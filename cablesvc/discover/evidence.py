@@ -66,14 +66,31 @@ def loo_errors(s: Signals, c: int, r: np.ndarray, terms: list[Term], hypers: lis
         mask[b] = False
         plist, pred, _ = solve_designs(ds, r, mask)
         pb = pred[b]
-        for k, cols in held:
-            X = ds[k].X
-            for j in cols:
-                lo, hi = X[mask, j].min(), X[mask, j].max()
-                xb = X[b, j]
-                pb = pb + plist[k][j] * (np.clip(xb, lo, hi) - xb)
+        if held:
+            pb = pb + _held_change(ds, plist, held, mask, b)
         out.append(r[b] - pb)
     return out
+
+
+def _held_change(ds: list, plist: list[np.ndarray], held: list[tuple[int, list[int]]], mask: np.ndarray,
+                 b: np.ndarray) -> np.ndarray:
+    """The change of the prediction on block ``b`` when each held column is held within the
+    range its own part took on the fitted ticks ``mask``. A held column's own part is what
+    the other columns cannot express (its residual after least squares on them, fitted
+    ticks): the recalibration's (A - mean A) xi is, where A does not vary, -mean A xi, which
+    its backbone columns express exactly; holding the raw column there would break that
+    cancellation instead of holding the amplitude's own correction."""
+    hold = {(k, j) for k, cols in held for j in cols}
+    other = [ds[k].X[:, [j for j in range(ds[k].p) if (k, j) not in hold]] for k in range(len(ds)) if ds[k].p]
+    Xo = np.hstack(other)
+    change = np.zeros(b.size)
+    for k, cols in held:
+        for j in cols:
+            x = ds[k].X[:, j]
+            beta = np.linalg.lstsq(Xo[mask], x[mask], rcond=None)[0] if Xo.shape[1] else np.zeros(0)
+            own_fit, own_b = x[mask] - Xo[mask] @ beta, x[b] - Xo[b] @ beta
+            change += plist[k][j] * (np.clip(own_b, own_fit.min(), own_fit.max()) - own_b)
+    return change
 
 
 @functools.lru_cache(maxsize=64)
