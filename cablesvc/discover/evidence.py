@@ -56,41 +56,60 @@ def loo_errors(s: Signals, c: int, r: np.ndarray, terms: list[Term], hypers: lis
     seemed to explain most of what the recalibration leaves."""
     cache = cache or DesignCache()
     ds = joint_designs(terms, hypers, s, c, cache, strips_nuisance(terms))
-    held = [(k, [j for j, n in enumerate(d.names) if n in d.held]) for k, d in enumerate(ds) if d.p and d.held]
+    held = _Held(ds, blocks) if any(d.p and d.held for d in ds) else None
     allb = np.zeros(s.n, bool)
     for b in blocks:
         allb[b] = True
     out = []
-    for b in blocks:
+    for i, b in enumerate(blocks):
         mask = allb.copy()
         mask[b] = False
         plist, pred, _ = solve_designs(ds, r, mask)
         pb = pred[b]
-        if held:
-            pb = pb + _held_change(ds, plist, held, mask, b)
+        if held is not None:
+            pb = pb + held.change(plist, i, mask, b)
         out.append(r[b] - pb)
     return out
 
 
-def _held_change(ds: list, plist: list[np.ndarray], held: list[tuple[int, list[int]]], mask: np.ndarray,
-                 b: np.ndarray) -> np.ndarray:
-    """The change of the prediction on block ``b`` when each held column is held within the
-    range its own part took on the fitted ticks ``mask``. A held column's own part is what
-    the other columns cannot express (its residual after least squares on them, fitted
-    ticks): the recalibration's (A - mean A) xi is, where A does not vary, -mean A xi, which
-    its backbone columns express exactly; holding the raw column there would break that
-    cancellation instead of holding the amplitude's own correction."""
-    hold = {(k, j) for k, cols in held for j in cols}
-    other = [ds[k].X[:, [j for j in range(ds[k].p) if (k, j) not in hold]] for k in range(len(ds)) if ds[k].p]
-    Xo = np.hstack(other)
-    change = np.zeros(b.size)
-    for k, cols in held:
-        for j in cols:
-            x = ds[k].X[:, j]
-            beta = np.linalg.lstsq(Xo[mask], x[mask], rcond=None)[0] if Xo.shape[1] else np.zeros(0)
-            own_fit, own_b = x[mask] - Xo[mask] @ beta, x[b] - Xo[b] @ beta
-            change += plist[k][j] * (np.clip(own_b, own_fit.min(), own_fit.max()) - own_b)
-    return change
+class _Held:
+    """The held columns of ``designs`` (``Design.held``) on each fold of a
+    leave-one-block-out fit: :meth:`change` is the change of the prediction on the block
+    left out when each held column is held within the range its own part took on the
+    fold's fitted ticks. A held column's own part is what the other columns cannot express
+    (its least-squares residual on them, fitted ticks): the recalibration's
+    (A - mean A) xi is, where A does not vary, -mean A xi, which its backbone columns
+    express exactly; holding the raw column there would break that cancellation instead
+    of holding the amplitude's own correction. The projections use per-block Gram
+    matrices, so a fold costs one small solve, not a least squares over the recording."""
+
+    def __init__(self, designs: list, blocks: list[np.ndarray]):
+        self.cols = [(k, j) for k, d in enumerate(designs) if d.p for j, n in enumerate(d.names) if n in d.held]
+        hold = set(self.cols)
+        other = [d.X[:, [j for j in range(d.p) if (k, j) not in hold]] for k, d in enumerate(designs) if d.p]
+        Xo = np.hstack(other)
+        scale = np.sqrt(np.mean(Xo * Xo, axis=0))
+        self.Xo = Xo / np.where(scale > 0, scale, 1.0)
+        self.Xh = np.column_stack([designs[k].X[:, j] for k, j in self.cols])
+        self.G_b = [self.Xo[b].T @ self.Xo[b] for b in blocks]
+        self.g_b = [self.Xo[b].T @ self.Xh[b] for b in blocks]
+        self.G, self.g = sum(self.G_b), sum(self.g_b)
+        self.diag = np.diag_indices(self.Xo.shape[1])
+
+    def change(self, plist: list[np.ndarray], i: int, mask: np.ndarray, b: np.ndarray) -> np.ndarray:
+        if self.Xo.shape[1]:
+            G = self.G - self.G_b[i]
+            # the columns are scaled to unit RMS: a ridge of 1e-9 of the mean diagonal only
+            # settles the exact collinearities (the span is what matters, not the split)
+            G[self.diag] += 1e-9 * float(np.mean(G[self.diag])) + 1e-300
+            beta = np.linalg.solve(G, self.g - self.g_b[i])
+            own = self.Xh - self.Xo @ beta
+        else:
+            own = self.Xh
+        lo, hi = own[mask].min(axis=0), own[mask].max(axis=0)
+        ob = own[b]
+        coef = np.array([plist[k][j] for k, j in self.cols])
+        return (np.clip(ob, lo, hi) - ob) @ coef
 
 
 @functools.lru_cache(maxsize=64)
