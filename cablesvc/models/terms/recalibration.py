@@ -73,7 +73,9 @@ class Recalibration(Term):
     with a prior reverts to it away from its data (Kennedy & O'Hagan 2001). The backbone
     columns (c2, c3) are not held (holding them too added a false finding on the development
     cases), nor are the baseline's own parameters (o, k_s, a_h), which are physical. A file
-    written without these references runs unclamped."""
+    written without these references runs unclamped. The design names the two columns in
+    ``Design.held``, so that a leave-one-block-out fit holds them within the support of its
+    own fitted ticks too (:func:`cablesvc.discover.evidence.loo_errors`)."""
 
     name = "baseline"
     label = "baseline recalibration (its own parameters and a smooth discrepancy in its own state)"
