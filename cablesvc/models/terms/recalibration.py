@@ -51,24 +51,6 @@ def hysteretic_part(s: Signals, c: int) -> np.ndarray:
 _HELD = ("K1_A", "d_A")
 
 
-#: the share of the training ticks on which the reversal amplitude must differ from its
-#: median for the amplitude discrepancy (K1_A, d_A) to be fitted at all
-AMPLITUDE_SUPPORT = 0.1
-
-
-def _amplitude_supported(s, c: int) -> bool:
-    """Whether the amplitude discrepancy of cable ``c`` has the support to be estimated: the
-    amplitude varies (:func:`amplitude_varies`) and differs from its training median by
-    more than 1 um on at least :data:`AMPLITUDE_SUPPORT` of the training ticks. Fitted on a
-    swing or two, its two coefficients are those few ticks' noise and model form (on a
-    control of development seed 60606, a 0.1 mm swing on 2 of 24 blocks: K1_A = -8.7e7
-    N/m^2 with that block left out, 57 noise variances predicted on it)."""
-    if not amplitude_varies(s, c):
-        return False
-    a = s.amplitude[s.train, c]
-    return bool(np.mean(np.abs(a - np.median(a)) > 1e-6) >= AMPLITUDE_SUPPORT)
-
-
 class Recalibration(Term):
     """Recalibration of the baseline's own parameters plus a smooth discrepancy in its own
     state (the nuisance every named term must beat with an identified baseline):
@@ -108,7 +90,7 @@ class Recalibration(Term):
 
     def refs(self, s, c, h):
         R = {**_backbone_refs(s, c), "A_mean": s.train_mean(s.amplitude[:, c]),
-             "has_A": float(_amplitude_supported(s, c))}
+             "has_A": float(amplitude_varies(s, c))}
         amp = np.empty((len(_HELD), s.n))
         _AMPLITUDE.columns(cable_view(s, c), R, h, amp)
         for n, v in zip(_HELD, amp):
