@@ -80,7 +80,7 @@ class Term:
         if self.has_fixed:
             fx = np.empty(s.n)
             self.fixed_part(g, R, h, fx)
-        return make_design(list(X), self.params, self.units, lower=self.lower, fixed=fx, refs=R)
+        return make_design(list(X), self.params, self.units, lower=self.lower, fixed=fx, refs=R, held=self.held)
 
     def live(self, table: dict[str, np.ndarray], lanes: int, m: int) -> "LiveTerm":
         """The live form over (lanes, m) from the parameter file's table (per cable arrays
@@ -95,6 +95,9 @@ class Term:
     #: when a term that owns the nuisance (``owns_nuisance``) is fitted on the same cable,
     #: and a term is only accepted when its specific columns beat its nuisance ones alone.
     nuisance: tuple[str, ...] = ()
+    #: names of linear columns held within the range they took on the ticks they were fitted
+    #: on (an empirical correction with no law outside its support; ``Design.held``)
+    held: tuple[str, ...] = ()
     #: True for the one term the generic offset/gain columns belong to (``offset_gain``)
     owns_nuisance: bool = False
     #: True for a term that only reshapes the baseline's own hysteresis or calibration

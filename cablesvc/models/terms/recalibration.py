@@ -73,9 +73,9 @@ class Recalibration(Term):
     with a prior reverts to it away from its data (Kennedy & O'Hagan 2001). The backbone
     columns (c2, c3) are not held (holding them too added a false finding on the development
     cases), nor are the baseline's own parameters (o, k_s, a_h), which are physical. A file
-    written without these references runs unclamped. The design names the two columns in
-    ``Design.held``, so that a leave-one-block-out fit holds them within the support of its
-    own fitted ticks too (:func:`cablesvc.discover.evidence.loo_errors`)."""
+    written without these references runs unclamped. The two columns are the term's
+    ``held`` ones (``Design.held``), so that a leave-one-block-out fit holds them within
+    the support of its own fitted ticks too (:func:`cablesvc.discover.evidence.loo_errors`)."""
 
     name = "baseline"
     label = "baseline recalibration (its own parameters and a smooth discrepancy in its own state)"
@@ -87,6 +87,7 @@ class Recalibration(Term):
     ref_names = ("x_mean", "x_scale", "h0", "h1", "h2", "h3", "A_mean",
                  *(f"{side}_{n}" for n in _HELD for side in ("lo", "hi")))
     owns_nuisance = True
+    held = _HELD
 
     def refs(self, s, c, h):
         R = {**_backbone_refs(s, c), "A_mean": s.train_mean(s.amplitude[:, c]),
@@ -119,7 +120,6 @@ class Recalibration(Term):
 
     def design(self, s, c, h):
         d = super().design(s, c, h)
-        d.held = _HELD
         return d if d.refs.get("has_A", 1.0) else d.without(_HELD)
 
     def evidence(self, s, c, h):

@@ -123,13 +123,13 @@ class Design:
 
 
 def make_design(cols: list[np.ndarray], names, units, lower=None, upper=None, fixed=None,
-            refs: Optional[dict[str, float]] = None) -> Design:
+            refs: Optional[dict[str, float]] = None, held: tuple[str, ...] = ()) -> Design:
     n = len(cols)
     X = np.column_stack(cols) if cols else np.zeros((0, 0))
     lo = np.full(n, -np.inf) if lower is None else np.asarray(lower, float)
     hi = np.full(n, np.inf) if upper is None else np.asarray(upper, float)
     return Design(fixed=fixed, X=X, names=tuple(names), units=tuple(units), lower=lo, upper=hi,
-                  refs=dict(refs or {}))
+                  refs=dict(refs or {}), held=tuple(n for n in held if n in names))
 
 
 def smooth_sign(v: np.ndarray, v_s: Any, out: Optional[np.ndarray] = None) -> np.ndarray:
