@@ -256,8 +256,10 @@ class Discovery:
             parts.append(f"sensor offset/gain or cable pretension/stiffness on cables {cs(rc['ambiguous'])}: "
                          "cannot tell (the measured forces do not balance)")
         for u in self.unexplained:
+            what = (f"repeats every {u['period_m']:.3g} m of the cable's travel: a turning part?" if "period_m" in u
+                    else f"follows {u['variable']}, peak {u['peak_hz']:.2g} Hz")
             parts.append(f"unexplained residual remains on cable{'s' if len(u['cables']) > 1 else ''} "
-                         f"{cs(u['cables'])} (follows {u['variable']}, peak {u['peak_hz']:.2g} Hz)")
+                         f"{cs(u['cables'])} ({what})")
         if not self.findings and not self.unexplained:
             if rc.get("cables"):
                 return "verdict: nothing significant beyond the baseline's calibration; " + "; ".join(parts)
@@ -297,6 +299,14 @@ class Discovery:
                          f"after fitting the weight, inertia, sensor and lag columns ("
                          + ("holds" if eq["holds"] else "does not hold") + f": <= {eq['threshold']:g} holds)")
         for u in self.unexplained:
+            if "period_m" in u:
+                lines.append(f"unexplained residual remains on cable {', '.join(map(str, u['cables']))}: "
+                             f"{u['amplitude_N']:.2g} N that repeats every {u['period_m']:.3g} m of the cable's "
+                             f"travel ({u['turns']:.3g} periods seen; {100 * u['share']:.0f} % of what the model "
+                             f"leaves beyond the noise, held out; block-level p = {u['p']:.2g}). No term of the "
+                             "library has that law: look for a turning part in the cable's path that runs out "
+                             "of round (winch drum, pulley)")
+                continue
             lines.append(f"unexplained residual remains on cables {', '.join(map(str, u['cables']))}: "
                          f"{u['excess_rms_N']:.2g} N RMS beyond the noise, follows {u['variable']} "
                          f"(eta2 {u['eta2']:.2f}), spectrum peak {u['peak_hz']:.3g} Hz (block-level p = {u['p']:.2g})")
@@ -609,6 +619,11 @@ UNEXPLAINED_FLOOR = 1.0
 #: ... and by this many times the median excess of all cables: what an imperfect baseline
 #: leaves everywhere after its recalibration is its model form, not an unexplained effect
 UNEXPLAINED_OVER_TYPICAL = 4.0
+#: a residual that repeats with the cable's travel (:mod:`.periodic`) is unexplained when
+#: its probe explains at least this share of what the model leaves beyond the noise ...
+PERIODIC_SHARE = 0.5
+#: ... and at least this many noise variances
+PERIODIC_GAIN_MIN = 1.0
 #: the share of what the recalibrated baseline leaves on the cable beyond the sensor noise
 #: (held-out) that a term must explain to be named (:mod:`.screen`) ...
 SHARE_MIN = 0.9
@@ -663,6 +678,7 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     from cablesvc.discover.evidence import block_gain_test, excess_test, holm, loo_errors
     from cablesvc.discover.locate import state_regions
     from cablesvc.discover.nuisance import Recalibration, describe_recalibration
+    from cablesvc.discover.periodic import travel_probe
     from cablesvc.discover.select import DesignCache
     from cablesvc.models.terms import LIBRARY
 
@@ -784,8 +800,32 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
         un_test[c] = excess_test(errs[c], noise[c], floor)
         un_p[c] = un_test[c]["p"]
     un_adj = holm(un_p, m)
-    un_cables = [c for c in range(m) if un_adj[c] < ALPHA]
+    # a residual that repeats with the cable's travel (a turning part: drum or pulley
+    # runout) is unexplained whatever its size against the other cables (:mod:`.periodic`)
+    probes = {}
+    for c in range(m):
+        pr = travel_probe(s, c, r[:, c], kept[c], [hyp[c][u.name] for u in kept[c]], train, fitmask, blocks,
+                          noise[c], e0=errs[c], cache=cache)
+        if pr is not None:
+            probes[c] = pr
+    pr_adj = holm({c: v["p"] for c, v in probes.items()}, len(probes))
+    for c, v in probes.items():
+        v["p_holm"] = pr_adj[c]
+        v["passed"] = bool(pr_adj[c] < ALPHA and v["gain"] >= PERIODIC_GAIN_MIN
+                           and v["excess_share"] >= PERIODIC_SHARE)
+    periodic = [c for c, v in probes.items() if v["passed"]]
+    un_cables = [c for c in range(m) if un_adj[c] < ALPHA and c not in periodic]
     unexplained = []
+    if periodic:
+        reg = state_regions(s, left, periodic, top=1)
+        for c in periodic:
+            v = probes[c]
+            unexplained.append({
+                "cables": [c], "variable": f"cable travel, repeating every {v['period_m']:.3g} m",
+                "period_m": v["period_m"], "amplitude_N": v["amplitude_N"], "turns": v["turns"],
+                "share": v["excess_share"], "eta2": float(reg[c][0]["eta2"]),
+                "peak_hz": _spectrum_peak(left[fitmask, c], s.dt),
+                "excess_rms_N": float(math.sqrt(max(un_test[c]["excess"], 0.0)) * noise[c]), "p": v["p_holm"]})
     if un_cables:
         reg = state_regions(s, left, un_cables, top=1)
         best_var: dict[str, list[int]] = {}
@@ -815,6 +855,7 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                 "joint_tests": {f"{n}@{c}": dict(v) for (n, c), v in sel.joint.items()}, "tries": tries,
                 "share_min": screen.share_min, "gain_min": screen.gain_min,
                 "unexplained_floor_noise_var": floor, "typical_excess_noise_var": typical,
+                "travel_probe": {str(c): v for c, v in probes.items()},
                 "model_form_excess_noise_var": model_form_excess,
                 "limits": {f"{n}@{c}": {"free": v["free"], "floor_rms_N": v["floor_rms_N"],
                                         "limit_rms_N": v["limit_rms_N"]} for (n, c), v in limits.items()}}
