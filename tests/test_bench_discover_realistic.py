@@ -282,3 +282,22 @@ def test_each_true_effect_is_set_against_the_recordings_detection_limit(robot):
     # no floor is below what the noise alone allows (gain 0.25 noise variances, all of the
     # shape free)
     assert 0.5 * 0.9 * NOISE < min(v["floor_N"].values()) < np.inf
+
+
+def test_a_drum_running_out_of_round_is_reported_as_a_residual_that_repeats_with_the_travel(robot, control):
+    # drum eccentricity is outside the term library: discovery must not name a term for it
+    # but report an unexplained residual on its cable that repeats once per drum turn
+    # (2 pi r_drum of travel), and report no such thing on the effect-free control
+    from cablesvc.discover import discover
+    case = make_realistic_case("ool", ["eccentricity"], 17, robot=robot, rng=np.random.default_rng(6))
+    eff = case.effects[0]
+    d = discover(case.recording, robot.robot, case.baseline)
+    rep = [u for u in d.unexplained if "period_m" in u]
+    assert [u["cables"] for u in rep] == [case.truth["cables"]], (d.unexplained, case.truth)
+    assert abs(rep[0]["period_m"] - 2.0 * np.pi * eff.drum_radius) < 0.02 * 2.0 * np.pi * eff.drum_radius
+    assert rep[0]["p"] < 0.05 and rep[0]["share"] >= 0.5
+    assert "of the cable's travel" in d.summary()[0]
+    assert json.loads(json.dumps(d.to_json()))["unexplained"][0]["period_m"] == rep[0]["period_m"]
+    d0 = discover(control.recording, robot.robot, control.baseline)
+    assert not [u for u in d0.unexplained if "period_m" in u]
+    assert not any(v["passed"] for v in d0.options["travel_probe"].values())

@@ -407,3 +407,32 @@ def test_held_out_recalibration_holds_its_amplitude_correction_where_no_other_bl
     assert held[7] < 1.5                           # held: the noise
     others = [k for k in range(len(blocks)) if k != 7]
     assert np.allclose(held[others], unheld[others], rtol=0.2)   # blocks within the support barely change
+
+
+def test_travel_probe_finds_a_force_that_repeats_with_one_cables_travel():
+    # every cable carries a smooth model-form misfit (a function of its elongation and a
+    # power of its rate); cable 4 also carries 0.2 N that repeats every 0.1 m of its travel
+    # (a drum running out of round). The probe finds that period beside the recalibration
+    # and explains most of what is left there; elsewhere it gains far less than the noise
+    from cablesvc.discover.evidence import block_ids
+    from cablesvc.discover.periodic import MIN_TURNS, PERIOD_MIN, travel_periods, travel_probe
+    from cablesvc.discover.pipeline import PERIODIC_GAIN_MIN
+    from cablesvc.models.terms import Recalibration
+    s, train, valid = _screen_signals()
+    fit = train | valid
+    blocks = block_ids(s.t, 1.25, fit)
+    r = 0.1 * np.random.default_rng(4).standard_normal(s.y.shape)
+    for c in range(s.m):
+        r[:, c] += 0.3 * _unit(s.x[:, c] - s.x[:, c].mean()) ** 2 + 0.2 * _unit(np.sign(s.v[:, c]) * np.abs(s.v[:, c]) ** 0.5)
+    r[:, 4] += 0.2 * np.sin(2.0 * np.pi * s.free_length[:, 4] / 0.1 + 0.7)
+    for c in range(s.m):
+        travel = np.ptp(s.free_length[fit, c])
+        P = travel_periods(travel)
+        assert P.size and P.min() >= PERIOD_MIN - 1e-12 and travel / P.max() >= MIN_TURNS - 1e-9
+        pr = travel_probe(s, c, r[:, c], [Recalibration()], [{}], train, fit, blocks, 0.1)
+        if c == 4:
+            assert abs(pr["period_m"] - 0.1) < 0.002 and abs(pr["amplitude_N"] - 0.2) < 0.04
+            assert pr["p"] < 0.01 and pr["excess_share"] > 0.5 and pr["gain"] > PERIODIC_GAIN_MIN
+        else:
+            assert pr["gain"] < 0.5 * PERIODIC_GAIN_MIN, (c, pr)
+    assert travel_periods(3.9 * PERIOD_MIN).size == 0          # fewer than four turns of the shortest period

@@ -8,12 +8,13 @@ No term of the library has that law, and it is not one (its period, its phase an
 amplitude belong to one part of one machine). But it has a signature no model-form misfit
 of a cable law has: the force error repeats every P metres of travel, in whatever time the
 trajectory takes to cover them. This is order analysis of rotating machinery (the residual
-read against shaft angle instead of time), with the cable's free length standing for the
-angle: the motor length differs from it by the elongation, millimetres against periods of
-centimetres or more.
+read against shaft angle instead of time), with the cable's travel, its motor length, standing
+for the angle: the motor length is the drum's angle times its radius. (The free length, which
+stood in for it at first, differs from it by the arc on the pulley as well, and a drum
+running out of round on a short travel went unreported: its phase did not hold.)
 
 :class:`TravelHarmonic` is that signature as a probe: two columns, the sine and cosine of
-2 pi (L - L0) / P, L the cable's free length [m], P the period [m]. It is a
+2 pi (L - L0) / P, L the cable's travel (its motor length) [m], P the period [m]. It is a
 :class:`~cablesvc.models.terms.base.Term` so that the held-out machinery of discovery fits
 and scores it like any term, but it is not in the library: discovery never names it, and
 no parameter file carries it. :func:`travel_probe` searches P per cable on the training
@@ -48,9 +49,9 @@ from scipy.optimize import minimize_scalar
 from cablesvc.discover.evidence import block_gain_test, loo_errors
 from cablesvc.discover.select import DesignCache, joint_designs, solve_designs
 from cablesvc.models.terms.base import Term
-from cablesvc.models.terms.signals import Signals
+from cablesvc.models.terms.signals import Signals, make_design
 
-__all__ = ["TravelHarmonic", "travel_probe", "travel_periods", "PERIOD_MIN", "MIN_TURNS"]
+__all__ = ["TravelHarmonic", "travel", "travel_probe", "travel_periods", "PERIOD_MIN", "MIN_TURNS"]
 
 #: the shortest period tried [m] (a 16 mm pulley's circumference; shorter is below what
 #: a 100 Hz recording of a moving cable resolves well)
@@ -65,25 +66,26 @@ class TravelHarmonic(Term):
 
         delta_f = a_s sin(2 pi (L - L0) / P) + a_c cos(2 pi (L - L0) / P)
 
-    L the cable's free length [m], L0 its first value [m], P [m]; a_s, a_c [N]. A probe of
+    L the cable's travel (motor length) [m], L0 its first value [m], P [m]; a_s, a_c [N]. A probe of
     :func:`travel_probe`, not a library term (see the module)."""
 
     name = "travel_harmonic"
     label = "a force that repeats with the cable's travel (a turning part: drum or pulley runout)"
     equation = "a_s sin(2 pi (L - L0)/P) + a_c cos(2 pi (L - L0)/P)"
-    variable = "cable travel (free length) [m]"
+    variable = "cable travel (motor length) [m]"
     params = ("a_s", "a_c")
     units = ("N", "N")
     hypers = ("P",)
-    ref_names = ("L0",)
+    def design(self, s, c, h):
+        L = travel(s, c)
+        ph = 2.0 * math.pi * (L - L[0]) / h["P"]
+        return make_design([np.sin(ph), np.cos(ph)], self.params, self.units, refs={"L0": float(L[0])})
 
-    def refs(self, s, c, h):
-        return {"L0": float(s.free_length[0, c])}
 
-    def columns(self, g, R, h, out):
-        ph = 2.0 * math.pi * (np.asarray(g.free_length) - R["L0"]) / h["P"]
-        np.sin(ph, out=out[0])
-        np.cos(ph, out=out[1])
+def travel(s: Signals, c: int) -> np.ndarray:
+    """The cable's travel (N,) [m]: its motor length, the free length where the signals do
+    not carry it (the two differ by the elongation and the arc on the pulley)."""
+    return np.asarray(s.travel[:, c] if s.travel is not None else s.free_length[:, c], float)
 
 
 _PROBE = TravelHarmonic()
@@ -110,8 +112,8 @@ def travel_probe(s: Signals, c: int, r: np.ndarray, terms: list[Term], hypers: l
     else {"period_m", "amplitude_N", "turns", and the block test's "gain", "before",
     "share", "excess_share", "p"}."""
     cache = cache or DesignCache()
-    travel = float(np.ptp(s.free_length[fitmask, c]))
-    periods = travel_periods(travel)
+    span = float(np.ptp(travel(s, c)[fitmask]))
+    periods = travel_periods(span)
     if periods.size == 0:
         return None
     base = joint_designs(terms, hypers, s, c, cache, False) if terms else []
@@ -136,4 +138,4 @@ def travel_probe(s: Signals, c: int, r: np.ndarray, terms: list[Term], hypers: l
     test = block_gain_test(e0, e1, noise)
     plist, _, _ = solve_designs(base + [_PROBE.design(s, c, h)], r, fitmask)
     a_s, a_c = (float(v) for v in plist[-1])
-    return {"period_m": best_P, "amplitude_N": math.hypot(a_s, a_c), "turns": travel / best_P, **test}
+    return {"period_m": best_P, "amplitude_N": math.hypot(a_s, a_c), "turns": span / best_P, **test}

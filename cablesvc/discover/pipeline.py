@@ -109,7 +109,7 @@ def build_signals(rec: Any, robot: Robot, params: ModelParams) -> Signals:
                    temperature=None if rec.temperature is None else np.asarray(rec.temperature, float),
                    ea=np.asarray(geom.ea, float), has_pulley=np.asarray(geom.has_pulley, bool),
                    amplitude=reversal_amplitude(x), train=np.ones(t.size, bool),
-                   cable_names=tuple(geom.cable_names))
+                   cable_names=tuple(geom.cable_names), travel=ml)
 
 
 def backward_rate(a: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -421,6 +421,7 @@ def _since(rec: Any, s: Signals, since: float,
     for k in ("t", "y", "f0", "x", "v", "v_slide", "wrap", "free_length", "amplitude", "train"):
         setattr(s2, k, getattr(s, k)[k0:])
     s2.temperature = None if s.temperature is None else s.temperature[k0:]
+    s2.travel = None if s.travel is None else s.travel[k0:]
     if breaks is not None:
         breaks = breaks[k0:].copy()
         breaks[0] = True

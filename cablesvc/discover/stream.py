@@ -253,7 +253,7 @@ def read_reduced(path: Any, robot: Robot, params: ModelParams, *, rate: float = 
         del ik
         gc.collect()
         acc.add({"t": t, "y": dec["y"], "f0": f0, "x": x, "v": v, "v_slide": vs, "wrap": wrap,
-                 "free_length": free, "T": dec["T"], "amplitude": amp, "pos": dec["pos"],
+                 "free_length": free, "travel": dec["ml"], "T": dec["T"], "amplitude": amp, "pos": dec["pos"],
                  "ori": dec["ori"]})
     if src.t0 is None:
         raise DiscoveryError("the recording has no ticks")
@@ -270,7 +270,7 @@ def read_reduced(path: Any, robot: Robot, params: ModelParams, *, rate: float = 
                 v_slide=kept["v_slide"], wrap=kept["wrap"], free_length=kept["free_length"], temperature=temp,
                 ea=np.asarray(geom.ea, float), has_pulley=np.asarray(geom.has_pulley, bool),
                 amplitude=kept["amplitude"], train=np.ones(kept["t"].size, bool),
-                cable_names=tuple(geom.cable_names))
+                cable_names=tuple(geom.cable_names), travel=kept["travel"])
     info = _reduction_info(src, acc, groups, int(s.n), block, max_groups, t_start)
     return ReducedRecording(t=kept["t"], position=kept["pos"], orientation=kept["ori"], force=kept["y"],
                             signals=s, breaks=breaks, info=info)

@@ -28,7 +28,9 @@ class Signals:
     amplitude from the last reversal points [m]
     (:func:`cablesvc.models.reversal.reversal_amplitude`);
     ``train`` (N,) bool: the ticks a term may use to fix data-dependent references (means)
-    so nothing of the held-out blocks leaks into the design.
+    so nothing of the held-out blocks leaks into the design; ``travel`` the motor length,
+    the cable the winch has paid out [m] (None where a caller did not give it: the free
+    length stands in for it).
     """
 
     t: np.ndarray
@@ -46,6 +48,7 @@ class Signals:
     amplitude: np.ndarray
     train: np.ndarray
     cable_names: tuple[str, ...] = ()
+    travel: Optional[np.ndarray] = None
 
     @property
     def n(self) -> int:
