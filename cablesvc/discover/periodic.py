@@ -19,7 +19,7 @@ running out of round on a short travel went unreported: its phase did not hold.)
 and scores it like any term, but it is not in the library: discovery never names it, and
 no parameter file carries it. :func:`travel_probe` searches P per cable on the training
 ticks (uniform in spatial frequency at half the resolution the cable's travel gives, then
-a bounded scalar refinement), only over periods the recording covers at least
+a bounded scalar refinement), only over periods the travel of the fitted ticks covers at least
 ``MIN_TURNS`` times (fewer turns tell a period from a slow trend too poorly), and tests the
 probe beside the cable's final model on held-out blocks, like the screen's tests
 (:func:`~cablesvc.discover.evidence.block_gain_test`). A cable is reported when, after
@@ -28,12 +28,11 @@ Holm's correction over the cables tried, the probe passes at the pipeline's ``AL
 noise **and** at least ``PERIODIC_GAIN_MIN`` (1) noise variance, the repeating part at least
 the noise RMS (:mod:`cablesvc.discover.pipeline`, where the other thresholds live).
 
-Measured on the realistic bench with the truth law as it is (``cablesvc bench discover``,
-seed 271828, which was used to choose these values; docs/discovery.md, "A residual that
-repeats with the cable's travel"): on the 7 drum-eccentricity cases the probe reported the
-eccentric cable in 4 (the floor test of the pipeline in 1), on none of the 13 other
-out-of-library cases and on none of the 40 controls; with only 1.5 turns required, 4
-controls were reported.
+Measured on the realistic bench with the truth law as it is (``cablesvc bench discover
+--cases 40``; docs/discovery.md, "A residual that repeats with the cable's travel"): drum
+eccentricities reported on their cable 1 -> 4 of 7 on seed 271828 (used to choose the
+values above) and 2 -> 4 of 7 on seed 8675309, no control and no anchor or mount case
+reported by the probe on either.
 
 Units: SI (m, N).
 """
