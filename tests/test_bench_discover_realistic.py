@@ -284,7 +284,7 @@ def test_each_true_effect_is_set_against_the_recordings_detection_limit(robot):
     assert 0.5 * 0.9 * NOISE < min(v["floor_N"].values()) < np.inf
 
 
-def test_a_drum_running_out_of_round_is_reported_as_a_residual_that_repeats_with_the_travel(robot, control):
+def test_a_drum_running_out_of_round_is_reported_as_a_residual_that_repeats_with_the_travel(robot, control, tmp_path):
     # drum eccentricity is outside the term library: discovery must not name a term for it
     # but report an unexplained residual on its cable that repeats once per drum turn
     # (2 pi r_drum of travel), and report no such thing on the effect-free control
@@ -298,6 +298,9 @@ def test_a_drum_running_out_of_round_is_reported_as_a_residual_that_repeats_with
     assert rep[0]["p"] < 0.05 and rep[0]["share"] >= 0.5
     assert "of the cable's travel" in d.summary()[0]
     assert json.loads(json.dumps(d.to_json()))["unexplained"][0]["period_m"] == rep[0]["period_m"]
+    from cablesvc.discover.report import write_report
+    files = write_report(d, tmp_path)
+    assert "unexplained_travel" in files and "unexplained_travel.png" in (tmp_path / "index.html").read_text()
     d0 = discover(control.recording, robot.robot, control.baseline)
     assert not [u for u in d0.unexplained if "period_m" in u]
     assert not any(v["passed"] for v in d0.options["travel_probe"].values())

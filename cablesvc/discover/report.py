@@ -11,6 +11,10 @@
   recording could show beside the recalibration, with a perfect baseline (floor) and with
   this one's model form (limit), against the sensor noise
   (:mod:`cablesvc.discover.detectability`);
+* ``unexplained_travel.png`` (a residual that repeats with a cable's travel,
+  :mod:`cablesvc.discover.periodic`): per such cable, what the model leaves on the test
+  ticks against the travel folded on the period found, with its mean per twentieth of a
+  period: the shape a turning part leaves once per turn;
 * ``params.toml``: the augmented parameter file;
 * ``index.html``: the summary sentences, the tables and the figures.
 """
@@ -136,6 +140,43 @@ def _fig_limits(d, path: Path) -> bool:
     return True
 
 
+def _unexplained_words(d) -> str:
+    return " ".join(f"Cable {', '.join(map(str, u['cables']))}: {u['variable']}." for u in d.unexplained)
+
+
+def _fig_travel(d, path: Path) -> bool:
+    """Held-out residual after the model against the travel folded on the period, per cable
+    reported as repeating with its travel; False when there is none."""
+    from cablesvc.discover.periodic import travel
+    rep = [u for u in d.unexplained if "period_m" in u]
+    if not rep:
+        return False
+    plt = _plt()
+    s = d.signals
+    test = d.masks["test"]
+    fig, axes = plt.subplots(1, len(rep), figsize=(max(6.0, 4.2 * len(rep) + 0.5), 3.3), squeeze=False)
+    for ax, u in zip(axes[0], rep):
+        c, P = u["cables"][0], u["period_m"]
+        fit = d.full[c]
+        left = (d.residual[:, c] - fit.pred)[test]
+        L = travel(s, c)
+        ph = np.mod(L - L[0], P)[test]
+        ax.plot(1e3 * ph, left, ".", ms=2, alpha=0.4, label="test ticks")
+        edges = np.linspace(0.0, P, 21)
+        k = np.clip(np.digitize(ph, edges) - 1, 0, 19)
+        mean = np.array([left[k == j].mean() if np.any(k == j) else np.nan for j in range(20)])
+        ax.plot(1e3 * 0.5 * (edges[1:] + edges[:-1]), mean, "k-", lw=1.5, label="mean per 1/20 period")
+        ax.set_xlabel(f"travel within one period of {1e3 * P:.0f} mm [mm]", fontsize=8)
+        ax.set_ylabel("residual after the model [N]")
+        ax.set_title(f"cable {c}: {u['amplitude_N']:.2g} N, {u['turns']:.3g} periods seen", fontsize=9)
+        ax.legend(fontsize=7, markerscale=4)
+    fig.suptitle("unexplained: repeats with the cable's travel (a turning part?)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
 def write_report(d, directory: str | os.PathLike) -> dict[str, str]:
     """Write the report of discovery ``d`` into ``directory``; returns name -> path."""
     out = Path(directory)
@@ -152,6 +193,8 @@ def write_report(d, directory: str | os.PathLike) -> dict[str, str]:
     files["overlay"] = str(out / "overlay.png")
     if _fig_limits(d, out / "limits.png"):
         files["limits"] = str(out / "limits.png")
+    if _fig_travel(d, out / "unexplained_travel.png"):
+        files["unexplained_travel"] = str(out / "unexplained_travel.png")
     for f in d.findings:
         if not all(c in d.final and f.term in d.final[c].contrib for c in f.cables):
             continue        # named from the wrench balance (sensor error), not a force term
@@ -178,6 +221,7 @@ def write_report(d, directory: str | os.PathLike) -> dict[str, str]:
 <h2>Summary</h2><ul>{''.join(f'<li>{e(x)}</li>' for x in d.summary())}</ul>
 <h2>Where</h2><ul>{locs or '<li>no cable above the noise floor</li>'}</ul>
 <h2>Findings</h2>{finds}
+{'<h2>Unexplained</h2><p>' + e(_unexplained_words(d)) + '</p><img src="unexplained_travel.png">' if "unexplained_travel" in files else ''}
 <h2>Held-out RMSE</h2><table><tr><th>cable</th><th>before [N]</th><th>after [N]</th><th>noise floor [N]</th></tr>{rows}</table>
 <img src="rmse.png"><img src="overlay.png">
 {'<h2>What the recording cannot show</h2><img src="limits.png">' if "limits" in files else ''}
