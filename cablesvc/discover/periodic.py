@@ -33,8 +33,8 @@ Measured on the realistic bench with the truth law as it is (``cablesvc bench di
 eccentricities reported on their cable 1 -> 4 of 7 on seed 271828 (used to choose the
 values above), 2 -> 4 of 7 on seed 8675309, 1 -> 1 on 314159 and 2 -> 3 on 5551; no
 control and no anchor or mount case reported by the probe; 4 false reports in the 380
-cases without an out-of-library effect, each on a cable carrying a library effect the
-model left partly unexplained, each with 4.0-5.4 periods seen.
+cases without an out-of-library effect (three on a cable carrying a library effect the
+model left partly unexplained), each with 4.0-5.4 periods seen.
 
 Units: SI (m, N).
 """
