@@ -77,6 +77,7 @@ class TravelHarmonic(Term):
     params = ("a_s", "a_c")
     units = ("N", "N")
     hypers = ("P",)
+
     def design(self, s, c, h):
         L = travel(s, c)
         ph = 2.0 * math.pi * (L - L[0]) / h["P"]

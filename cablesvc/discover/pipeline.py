@@ -816,29 +816,30 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                            and v["excess_share"] >= PERIODIC_SHARE)
     periodic = [c for c, v in probes.items() if v["passed"]]
     un_cables = [c for c in range(m) if un_adj[c] < ALPHA and c not in periodic]
+    # what locate finds on every cable reported: the state variable its residual follows
+    # best, its spectrum peak and its excess beyond the noise
+    reported = periodic + un_cables
+    reg = state_regions(s, left, reported, top=1) if reported else {}
+    peak = {c: _spectrum_peak(left[fitmask, c], s.dt) for c in reported}
+    excess = {c: math.sqrt(max(un_test[c]["excess"], 0.0)) * noise[c] for c in reported}
     unexplained = []
-    if periodic:
-        reg = state_regions(s, left, periodic, top=1)
-        for c in periodic:
-            v = probes[c]
-            unexplained.append({
-                "cables": [c], "variable": f"cable travel, repeating every {v['period_m']:.3g} m",
-                "period_m": v["period_m"], "amplitude_N": v["amplitude_N"], "turns": v["turns"],
-                "share": v["excess_share"], "eta2": float(reg[c][0]["eta2"]),
-                "peak_hz": _spectrum_peak(left[fitmask, c], s.dt),
-                "excess_rms_N": float(math.sqrt(max(un_test[c]["excess"], 0.0)) * noise[c]), "p": v["p_holm"]})
-    if un_cables:
-        reg = state_regions(s, left, un_cables, top=1)
-        best_var: dict[str, list[int]] = {}
-        for c in un_cables:
-            best_var.setdefault(reg[c][0]["variable"], []).append(c)
-        for var, cs in best_var.items():
-            unexplained.append({
-                "cables": cs, "variable": var,
-                "eta2": float(np.mean([reg[c][0]["eta2"] for c in cs])),
-                "peak_hz": float(np.median([_spectrum_peak(left[fitmask, c], s.dt) for c in cs])),
-                "excess_rms_N": float(np.median([math.sqrt(max(un_test[c]["excess"], 0.0)) * noise[c] for c in cs])),
-                "p": float(max(un_adj[c] for c in cs))})
+    for c in periodic:
+        v = probes[c]
+        unexplained.append({
+            "cables": [c], "variable": f"cable travel, repeating every {v['period_m']:.3g} m",
+            "period_m": v["period_m"], "amplitude_N": v["amplitude_N"], "turns": v["turns"],
+            "share": v["excess_share"], "eta2": float(reg[c][0]["eta2"]), "peak_hz": peak[c],
+            "excess_rms_N": float(excess[c]), "p": v["p_holm"]})
+    best_var: dict[str, list[int]] = {}
+    for c in un_cables:
+        best_var.setdefault(reg[c][0]["variable"], []).append(c)
+    for var, cs in best_var.items():
+        unexplained.append({
+            "cables": cs, "variable": var,
+            "eta2": float(np.mean([reg[c][0]["eta2"] for c in cs])),
+            "peak_hz": float(np.median([peak[c] for c in cs])),
+            "excess_rms_N": float(np.median([excess[c] for c in cs])),
+            "p": float(max(un_adj[c] for c in cs))})
     # what the recording cannot show beside the recalibration: per candidate term, the
     # least effect the screen would name on each cable, where the recalibrated baseline
     # leaves what it leaves on the median cable (its model form: a cable's own excess
