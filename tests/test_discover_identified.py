@@ -213,10 +213,10 @@ def test_cli_calib_identifies_then_discovers_and_prints_the_verdict_first(tmp_pa
 
 
 def test_block_screen_names_a_term_only_where_it_explains_most_of_the_residual():
-    # cable 2: a viscous force alone; cable 5: a rate-dependent hysteresis of another form
-    # (sgn(v)|v|^0.3, the kind an imperfect baseline leaves), which the viscous column
-    # explains in part. Only on cable 2 does the term explain most of what the
-    # recalibrated baseline leaves
+    # cable 2: a viscous force alone; cable 5: a rate-dependent misfit of another form (a
+    # relaxing branch, time constant 1 s, the kind an imperfect baseline leaves), which the
+    # viscous column explains in part. Only on cable 2 does the term explain most of what
+    # the recalibrated baseline leaves
     from cablesvc.discover.pipeline import build_signals, split_blocks
     from cablesvc.discover.screen import BlockScreen
     from cablesvc.models.terms import LIBRARY, Recalibration
@@ -228,9 +228,7 @@ def test_block_screen_names_a_term_only_where_it_explains_most_of_the_residual()
     rng = np.random.default_rng(4)
     r = 0.1 * rng.standard_normal(s.y.shape)
     r[:, 2] += 0.5 * s.v[:, 2] / np.sqrt(np.mean(s.v[:, 2] ** 2))
-    u = s.v[:, 5] / np.abs(s.v[:, 5]).max()
-    form = np.sign(u) * np.abs(u) ** 0.3
-    r[:, 5] += 1.0 * form / form.std()
+    r[:, 5] += 1.0 * _unit(_relaxing(s.x[:, 5], s.t, 1.0))
     noise = np.full(s.m, 0.1)
     sel = BlockScreen().select(s, r, [LIBRARY["viscous"]], train, valid, noise=noise, base=[Recalibration()])
     assert sel.named() == {"viscous": [2]}
@@ -307,17 +305,83 @@ def _unit(x):
     return x / np.sqrt(np.mean(x ** 2))
 
 
+def _relaxing(x, t, tau):
+    """A relaxing (Maxwell) branch's stretch [m]: dy/dt = dx/dt - y / tau, exact for x
+    piecewise linear in t."""
+    from scipy.signal import lfilter
+    dt = float(np.median(np.diff(t)))
+    a = np.exp(-dt / tau)
+    return lfilter([tau / dt * (1.0 - a)], [1.0, -a], np.diff(x, prepend=x[0]))
+
+
+def _WithoutDamping():
+    """The recalibration without its damping columns (002 eq 8's rate law, level free)."""
+    from cablesvc.models.terms import Recalibration
+    from cablesvc.models.terms.recalibration import _RATE
+
+    class WithoutDamping(Recalibration):
+        def design(self, s, c, h):
+            return super().design(s, c, h).without(_RATE)
+
+    return WithoutDamping()
+
+
+def _envelope_damping(x, t, alpha, t_env=30.0):
+    """A damping force of 002 eq 8's rate law whose level follows a running envelope of x
+    (half its peak-to-peak, the gap shrinking with ``t_env`` [s]) and whose speed scale is
+    the running peak speed, decaying alike: not the baseline's reversal-point amplitude."""
+    dt = float(np.median(np.diff(t)))
+    out, hi, lo, ve = np.zeros(x.size), x[0], x[0], 1e-6
+    for n in range(1, x.size):
+        gap = hi - lo
+        hi = max(x[n], hi - 0.5 * gap * dt / t_env)
+        lo = min(x[n], lo + 0.5 * gap * dt / t_env)
+        v = (x[n] - x[n - 1]) / dt
+        ve = max(abs(v), ve * (1.0 - dt / t_env), 1e-6)
+        out[n] = np.tanh(0.5 * (hi - lo) / 2e-3) * np.sign(v) * (abs(v) / ve) ** alpha
+    return out
+
+
+def test_recalibration_takes_a_damping_law_with_another_amplitude_estimate():
+    # cables 2 and 3 carry 10 x the noise of a damping force of 002 eq 8's rate law whose
+    # level follows a running envelope of the elongation (the realistic bench's truth
+    # damps so; the baseline scales its damping by the last reversal amplitude); cable 2
+    # also carries a viscous force. The recalibration's damping columns take the damping
+    # law and leave the viscous force to be named
+    from cablesvc.discover.evidence import block_ids, loo_errors
+    from cablesvc.discover.screen import BlockScreen
+    from cablesvc.models.terms import LIBRARY, Recalibration
+
+    s, train, valid = _screen_signals()
+    r = 0.1 * np.random.default_rng(8).standard_normal(s.y.shape)
+    for c in (2, 3):               # an exponent the columns do not have (0 and 0.25)
+        r[:, c] += 1.0 * _unit(_envelope_damping(s.x[:, c], s.t, 0.4))
+    r[:, 2] += 1.0 * _unit(s.v[:, 2])
+    blocks = block_ids(s.t, 1.25, train | valid)
+
+    def excess(term):
+        return np.mean([np.mean(e ** 2) for e in loo_errors(s, 3, r[:, 3], [term], [{}], blocks)]) / 0.01 - 1.0
+
+    before, after = excess(_WithoutDamping()), excess(Recalibration())
+    assert before > 2.0 and after < 0.1 * before
+    sel = BlockScreen().select(s, r, [LIBRARY["viscous"]], train, valid, noise=np.full(s.m, 0.1),
+                               base=[Recalibration()])
+    assert sel.named() == {"viscous": [2]}
+
+
 def test_block_screen_names_a_second_effect_beside_the_first_on_one_cable():
     # cable 6: a viscous force and a creep drift. Creep alone cannot explain the residual
     # the viscous force dominates (its test alone fails), but beside the viscous term it
     # explains nearly all that is left; it was never tried there when only terms that
-    # passed alone were tried beside the first
+    # passed alone were tried beside the first. (The recalibration's damping columns take
+    # part of a viscous force: at 20 x the noise beside this drift it explained 0.89 of the
+    # excess, short of the 0.9 that names it; at 30 x, 0.95)
     from cablesvc.discover.screen import BlockScreen
     from cablesvc.models.terms import LIBRARY, Recalibration
     s, train, valid = _screen_signals()
     drift = 1.0 - np.exp(-s.t / 4.0) + 0.02 * s.t
     r = 0.1 * np.random.default_rng(5).standard_normal(s.y.shape)
-    r[:, 6] += 2.0 * _unit(s.v[:, 6]) - 0.3 * (drift - drift.mean()) / drift.std()
+    r[:, 6] += 3.0 * _unit(s.v[:, 6]) - 0.3 * (drift - drift.mean()) / drift.std()
     sel = BlockScreen().select(s, r, [LIBRARY["viscous"], LIBRARY["creep"]], train, valid, noise=np.full(s.m, 0.1),
                                base=[Recalibration()])
     assert sel.named() == {"viscous": [6], "creep": [6]}
@@ -328,7 +392,8 @@ def test_block_screen_names_a_second_effect_beside_the_first_on_one_cable():
 
 def test_block_screen_tries_a_named_mechanism_on_the_robots_other_cables():
     # viscous friction on cables 2 and 5; cable 5 also carries a rate-dependent misfit of
-    # another form, so the viscous term explains only 0.6-0.9 of its excess and fails the
+    # another form (a relaxing branch, 1 s), so the viscous term explains only 0.6-0.9 of
+    # its excess and fails the
     # per-cable share. Named on cable 2, it is tried on the other cables with Holm over
     # those tries and share_robot; the share_robot equal to share_min turns that off
     from cablesvc.discover.screen import BlockScreen
@@ -336,8 +401,7 @@ def test_block_screen_tries_a_named_mechanism_on_the_robots_other_cables():
     s, train, valid = _screen_signals()
     r = 0.1 * np.random.default_rng(6).standard_normal(s.y.shape)
     r[:, 2] += 0.5 * _unit(s.v[:, 2])
-    u = s.v[:, 5] / np.abs(s.v[:, 5]).max()
-    r[:, 5] += 0.5 * _unit(s.v[:, 5]) + 0.6 * _unit(np.sign(u) * np.abs(u) ** 0.3)
+    r[:, 5] += 0.5 * _unit(s.v[:, 5]) + 0.6 * _unit(_relaxing(s.x[:, 5], s.t, 1.0))
     args = (s, r, [LIBRARY["viscous"]], train, valid)
     kw = dict(noise=np.full(s.m, 0.1), base=[Recalibration()])
     sel = BlockScreen(share_robot=0.5).select(*args, **kw)
@@ -354,16 +418,20 @@ def test_block_screen_tries_a_named_mechanism_on_the_robots_other_cables():
 def test_block_screen_holds_the_lag_the_balance_measured():
     # a force channel lagging 0.08 s and a viscous force on cable 4; the dead time comes
     # from outside evidence (the forces' balance) with its lag. Refitted on the force
-    # residual, the lag shrinks to take up the viscous force and that is not named; held,
-    # the viscous force is named beside it
+    # residual, the lag shrinks to take up the viscous force; held, it is the balance's
+    # lag and the viscous force is named beside it. The screen's mechanism is tried beside
+    # the recalibration without its damping columns: with them, they take part of the
+    # viscous force themselves and the lag does not shrink (measured: the refitted lag
+    # stayed at 0.08 s, and the viscous force beside it explained 0.79-0.84 of the excess
+    # at Holm p 0.10-0.51, unnamed)
     from cablesvc.discover.screen import BlockScreen
-    from cablesvc.models.terms import LIBRARY, Recalibration
+    from cablesvc.models.terms import LIBRARY
     s, train, valid = _screen_signals()
     dt = LIBRARY["deadtime"]
     r = 0.1 * np.random.default_rng(7).standard_normal(s.y.shape)
     r[:, 4] += dt.design(s, 4, {"tau": 0.08}).fixed + 0.5 * _unit(s.v[:, 4])
     terms = [LIBRARY["viscous"], dt]
-    kw = dict(noise=np.full(s.m, 0.1), base=[Recalibration()])
+    kw = dict(noise=np.full(s.m, 0.1), base=[_WithoutDamping()])
     held = BlockScreen().select(s, r, terms, train, valid, evidence={
         ("deadtime", 4): {"source": "balance", "p": 1e-6, "hyper": {"tau": 0.08}}}, **kw)
     assert held.fits[4].hyper["deadtime"]["tau"] == 0.08

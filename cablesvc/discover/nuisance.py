@@ -10,6 +10,7 @@ the physics), :class:`Recalibration` refits, per cable and on the training block
 baseline family's own parameters plus a smooth discrepancy in its own variables:
 
     delta_f = o + k_s f0 + a_h h + c2 xi^2 / s + c3 xi^3 / s^2 + K1_A (A - mean A) xi + d_A A tanh(v / v_s)
+              + sum_a (c_ra + c_ra_e E) sgn(v) (|v| / v_ref)^a,   a = 0, 0.25
 
 with f0 the baseline force [N], xi = x - mean x the elongation about its training mean
 [m] and s its training std [m], h = f0 - P3(x) the baseline's hysteretic part (f0 minus its
@@ -17,7 +18,16 @@ least-squares cubic backbone in x on the training ticks) [N], A the reversal amp
 (002 eq 8) and v_s = 1e-4 m/s. Parameters: o [N] force offset at zero force (pretension),
 k_s [-] stiffness scale, a_h [-] loop-area scale, c2, c3 [N] backbone curvature
 (001 Ch 4 backbone k2, k3), K1_A [N/m^2] and d_A [N/m] the amplitude dependence of
-002 eq 8. Only inputs enter these columns (never the measured force).
+002 eq 8. The last columns are 002 eq 8's damping rate law, sgn(v) |v|^a at a = 0 (dry
+friction) and 0.25, with its level free instead of fixed by the loop area over the reversal
+amplitude and frequency: a level c_ra [N at v_ref = 1 mm/s] and one growing with the
+elongation's envelope E [mm] (half the range x has covered since the first tick, another
+amplitude estimate than the last reversal points), c_ra_e [N/mm]. An identified baseline's
+damping is the loop area of millimetre sines at one working point; along a trajectory its
+amplitude normalisation is the least reliable part of the law (issue 15 lists "another
+amplitude estimator" among the model-form errors). The exponents stay well below a viscous
+force's 1, so that a Kelvin-Voigt damper keeps a part of its own. Only inputs enter these columns (never the
+measured force).
 
 The terms that only reshape the baseline's own hysteresis (``amplitude``, ``asymmetric``,
 ``boucwen``: :attr:`Term.model_form`) and the sensor's offset and gain (which a force
@@ -39,8 +49,12 @@ __all__ = ["Recalibration", "hysteretic_part", "describe_recalibration"]
 
 
 def describe_recalibration(params: dict[str, Any]) -> str:
-    """Plain words for one cable's recalibration: stiffness, pretension, loop area."""
+    """Plain words for one cable's recalibration: stiffness, pretension, loop area, damping."""
     parts = [f"stiffness {100.0 * params.get('k_s', 0.0):+.1f} %",
              f"pretension/offset {params.get('o', 0.0):+.2f} N",
              f"loop area {100.0 * params.get('a_h', 0.0):+.0f} %"]
+    level = sum(v for k, v in params.items() if k.startswith("c_r") and not k.endswith("_e"))
+    per_mm = sum(v for k, v in params.items() if k.startswith("c_r") and k.endswith("_e"))
+    if level or per_mm:
+        parts.append(f"damping at 1 mm/s {level:+.2f} N {per_mm:+.2f} N per mm of envelope")
     return ", ".join(parts)

@@ -5,9 +5,11 @@ and the baseline's hysteretic part it is built on (:func:`hysteretic_part`).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
-from cablesvc.models.terms.base import Term
+from cablesvc.models.terms.base import LiveTerm, Term
 from cablesvc.models.terms.material import (AmplitudeStiffness, AsymmetricHardening, amplitude_varies,
                                             elongation_centre_scale)
 from cablesvc.models.terms.signals import Signals, cable_view
@@ -46,6 +48,37 @@ def hysteretic_part(s: Signals, c: int) -> np.ndarray:
     return out
 
 
+#: m/s: the speed the damping columns are scaled at (their coefficient is the force at it)
+V_REF = 1e-3
+#: m/s: below this speed the damping columns are linear in v (sgn(v) |v|^alpha regularised)
+V_LIN = 1e-5
+#: the rate exponents alpha of the damping columns (002 eq 8: alpha = 0 is dry friction):
+#: well below a viscous force's 1, so that a Kelvin-Voigt damper keeps a part of its own
+RATE_EXPONENTS = (0.0, 0.25)
+#: the damping columns: per exponent, the rate law with a free level, then the same with a
+#: level that grows with the elongation's envelope
+_RATE = (*(f"c_r{int(100 * a)}" for a in RATE_EXPONENTS), *(f"c_r{int(100 * a)}_e" for a in RATE_EXPONENTS))
+
+
+def rate_power(v: np.ndarray, alpha: Any, out: np.ndarray) -> np.ndarray:
+    """sgn(v) (|v| / V_REF)^alpha, linear in v below V_LIN (into ``out``) [-]: the rate law
+    of 002 eq 8's damping with its amplitude normalisation left out."""
+    np.abs(v, out=out)
+    np.maximum(out, V_LIN, out=out)
+    np.divide(out, V_REF, out=out)
+    np.power(out, alpha - 1.0, out=out)
+    np.multiply(out, v, out=out)
+    np.divide(out, V_REF, out=out)
+    return out
+
+
+def envelope(x: np.ndarray) -> np.ndarray:
+    """The elongation's envelope [mm] (N, ...): half the range x has covered from the first
+    tick to each tick (the running peak-to-peak / 2), another estimate of the excitation
+    amplitude than 002's last reversal points."""
+    return 0.5e3 * (np.maximum.accumulate(x, axis=0) - np.minimum.accumulate(x, axis=0))
+
+
 #: the discrepancy's amplitude columns (the law of the amplitude term, columns 5 and 6 of
 #: this one), held within their training range
 _HELD = ("K1_A", "d_A")
@@ -56,11 +89,22 @@ class Recalibration(Term):
     state (the nuisance every named term must beat with an identified baseline):
 
         delta_f = o + k_s f0 + a_h h + c2 xi^2 / s + c3 xi^3 / s^2 + K1_A (A - mean A) xi + d_A A tanh(v / v_s)
+                  + sum_a (c_ra + c_ra_e E) sgn(v) (|v| / v_ref)^a,   a in RATE_EXPONENTS = (0, 0.25)
 
     f0 the baseline force [N], xi = x - mean x [m], s its training std [m], h = f0 - P3(x)
     the baseline's hysteretic part (f0 minus its least-squares cubic backbone in x on the
     training ticks) [N], A the reversal amplitude [m] (002 eq 8), v_s = 1e-4 m/s. o [N],
     k_s [-], a_h [-], c2, c3 [N], K1_A [N/m^2], d_A [N/m] (the last two only when A varies).
+    The last columns are 002 eq 8's damping rate law sgn(v) |v|^a (:func:`rate_power`,
+    v_ref = 1 mm/s) with its level free instead of S_a / (A (A w)^a l pi): c_ra [N at
+    v_ref], and a level growing with the elongation's envelope E [mm] (:func:`envelope`:
+    another amplitude estimate than the last reversal points), c_ra_e [N/mm]. The exponents
+    span dry friction (a = 0) to a weak rate dependence; together they stand for an
+    exponent up to about 0.5 over a trajectory's speeds, and stay well below a viscous
+    force's 1, which keeps a part of its own. An identified baseline's damping is the loop
+    area of millimetre sines at one working point; along a trajectory its amplitude
+    normalisation is the least reliable part of its law (issue 15 lists "another amplitude
+    estimator" among the model-form errors of a real cable).
     Background and references: :mod:`cablesvc.discover.nuisance`.
 
     The two amplitude columns of the discrepancy (K1_A, d_A) are held within the range they
@@ -80,10 +124,11 @@ class Recalibration(Term):
     name = "baseline"
     label = "baseline recalibration (its own parameters and a smooth discrepancy in its own state)"
     equation = ("o + k_s f0 + a_h h + c2 xi^2/s + c3 xi^3/s^2 + K1_A (A - mean A) xi + d_A A tanh(v/v_s)"
-                "  (002 eq 8, 001 Ch 4; Kennedy & O'Hagan 2001)")
+                " + sum_a (c_ra + c_ra_e E) sgn(v) |v/v_ref|^a  (002 eq 8, 001 Ch 4; Kennedy & O'Hagan 2001)")
     variable = "baseline force f0 [N]"
-    params = ("o", "k_s", "a_h", "c2", "c3", "K1_A", "d_A")
-    units = ("N", "-", "-", "N", "N", "N/m^2", "N/m")
+    params = ("o", "k_s", "a_h", "c2", "c3", "K1_A", "d_A", *_RATE)
+    units = ("N", "-", "-", "N", "N", "N/m^2", "N/m", *("N" for _ in RATE_EXPONENTS),
+             *("N/mm" for _ in RATE_EXPONENTS))
     ref_names = ("x_mean", "x_scale", "h0", "h1", "h2", "h3", "A_mean",
                  *(f"{side}_{n}" for n in _HELD for side in ("lo", "hi")))
     owns_nuisance = True
@@ -99,6 +144,12 @@ class Recalibration(Term):
         return R
 
     def columns(self, g, R, h, out):
+        self.law(g, R, h, envelope(g.x), out)
+
+    @staticmethod
+    def law(g, R, h, env, out):
+        """The columns (p, ...) into ``out`` from the signals ``g`` and the elongation's
+        envelope ``env`` [mm] (:func:`envelope` offline, :class:`_RecalibrationLive` live)."""
         o, ks, ah, c2 = out[:4]
         o.fill(1.0)
         np.copyto(ks, g.f0)
@@ -109,9 +160,13 @@ class Recalibration(Term):
         for n, col in zip(_HELD, out[5:7]):              # ... held within their support
             np.maximum(col, R[f"lo_{n}"], out=col)
             np.minimum(col, R[f"hi_{n}"], out=col)
+        k = len(RATE_EXPONENTS)
+        for a, col, col_e in zip(RATE_EXPONENTS, out[7:7 + k], out[7 + k:]):
+            rate_power(g.v, a, col)                      # 002 eq 8's damping rate law, its level free
+            np.multiply(col, env, out=col_e)             # ... and its level growing with the envelope
 
     def live(self, table, lanes, m):
-        lt = super().live(table, lanes, m)
+        lt = _RecalibrationLive(self, table, lanes, m)
         for n in _HELD:                                  # a file without the bounds: unclamped
             for side, unbounded in (("lo", -np.inf), ("hi", np.inf)):
                 if f"{side}_{n}" not in table:
@@ -129,6 +184,39 @@ class Recalibration(Term):
         f0 = s.f0[:, c]
         return {**params, "mean_f0_N": float(np.mean(f0)),
                 "offset_at_mean_N": float(params.get("o", 0.0) + params.get("k_s", 0.0) * np.mean(f0))}
+
+
+class _RecalibrationLive(LiveTerm):
+    """The live form: the envelope's running extremes of the elongation per (lane, cable),
+    from the first tick this term sees (as :func:`envelope` from the signals' first tick)."""
+
+    def __init__(self, term, table, lanes, m):
+        super().__init__(term, table, lanes, m)
+        self.hi = np.zeros((lanes, m))
+        self.lo = np.zeros((lanes, m))
+        self.env = np.zeros((lanes, m))
+        self.started = np.zeros(1, bool)
+
+    def write(self, g):
+        if not self.started[0]:
+            np.copyto(self.hi, g.x)
+            np.copyto(self.lo, g.x)
+            self.started[0] = True
+        np.maximum(self.hi, g.x, out=self.hi)
+        np.minimum(self.lo, g.x, out=self.lo)
+        np.subtract(self.hi, self.lo, out=self.env)
+        np.multiply(self.env, 0.5e3, out=self.env)
+        self.term.law(g, self.R, self.H, self.env, self.cols)
+
+    def state_dict(self):
+        return {"hi": self.hi.copy(), "lo": self.lo.copy(), "started": self.started.copy()}
+
+    def load_state_dict(self, d):
+        if "hi" not in d or np.shape(d["hi"]) != self.hi.shape:     # a state saved without it
+            return
+        np.copyto(self.hi, d["hi"])
+        np.copyto(self.lo, d["lo"])
+        np.copyto(self.started, d["started"])
 
 
 _ASYMMETRIC = AsymmetricHardening()
