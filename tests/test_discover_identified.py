@@ -367,6 +367,10 @@ def test_recalibration_takes_a_damping_law_with_another_amplitude_estimate():
     sel = BlockScreen().select(s, r, [LIBRARY["viscous"]], train, valid, noise=np.full(s.m, 0.1),
                                base=[Recalibration()])
     assert sel.named() == {"viscous": [2]}
+    from cablesvc.discover.nuisance import describe_recalibration
+    fit = sel.fits[3].params["baseline"]
+    assert abs(fit["c_r0_e"]) + abs(fit["c_r25_e"]) > 0.0
+    assert "per mm of envelope" in describe_recalibration(fit)
 
 
 def test_block_screen_names_a_second_effect_beside_the_first_on_one_cable():

@@ -56,5 +56,5 @@ def describe_recalibration(params: dict[str, Any]) -> str:
     level = sum(v for k, v in params.items() if k.startswith("c_r") and not k.endswith("_e"))
     per_mm = sum(v for k, v in params.items() if k.startswith("c_r") and k.endswith("_e"))
     if level or per_mm:
-        parts.append(f"damping at 1 mm/s {level:+.2f} N {per_mm:+.2f} N per mm of envelope")
+        parts.append(f"damping at 1 mm/s {level:+.2f} N and {per_mm:+.2f} N per mm of envelope")
     return ", ".join(parts)
