@@ -14,6 +14,7 @@ from cablesvc.discover.pipeline import Discovery, baseline_params, build_signals
 from cablesvc.discover.select import Selection, fit_terms
 from cablesvc.kernel import Predictor
 from cablesvc.models.terms import LIBRARY, Recalibration, Sag, TermStack, cable_view, term_class
+from cablesvc.models.terms.recalibration import envelope
 from cablesvc.models.reversal import REVERSAL_DEADBAND, LiveReversalAmplitude, reversal_amplitude, reversal_points
 from cablesvc.simulate import TruthConfig, effect_from_spec, simulate_recording
 
@@ -136,6 +137,12 @@ def test_recalibration_discrepancy_is_held_within_its_training_range(robot, tmp_
             np.testing.assert_array_equal(col[s.train], raw[j][s.train])      # untouched where fitted
             np.testing.assert_array_equal(col, np.clip(raw[j], lo, hi))
             left += int(np.any((raw[j] < lo) | (raw[j] > hi)))
+        # the damping level grows with the envelope only up to the largest one fitted
+        E = envelope(s.x[:, c])
+        assert d.refs["E_hi"] == np.max(E[s.train])
+        for a in ("c_r0", "c_r25"):
+            np.testing.assert_allclose(d.X[:, d.names.index(a + "_e")],
+                                       d.X[:, d.names.index(a)] * np.minimum(E, d.refs["E_hi"]), rtol=1e-12, atol=0)
     assert left == 2 * s.m, "the second half reaches beyond the first half's range on every cable"
 
     dis = _discovery(rec, robot, ["baseline"], train_first_half=True)
@@ -148,12 +155,27 @@ def test_recalibration_discrepancy_is_held_within_its_training_range(robot, tmp_
     assert np.max(np.abs(live - off) / np.maximum(np.abs(off), 1.0)) < 1e-9
 
 
+def test_recalibration_damping_level_stops_growing_beyond_the_envelope_it_was_fitted_on():
+    """Live, the elongation ramps 5 mm at 1 mm/s (envelope 2.5 mm) on a cable whose damping
+    level grows 1 N per mm of envelope, fitted up to 1 mm: the force stops at 1 N; a file
+    without the bound lets it reach 2.5 N."""
+    def last_force(table):
+        stack = TermStack([Recalibration()], {"baseline": table}, 1)
+        zero = np.zeros((1, 1))
+        for k in range(501):
+            f = stack.step(0.01 * k, zero, np.full((1, 1), 1e-5 * k), zero, zero, zero, None)
+        return float(f[0, 0])
+    assert last_force({"c_r0_e": [1.0], "E_hi": [1.0]}) == pytest.approx(1.0, rel=1e-9)
+    assert last_force({"c_r0_e": [1.0]}) == pytest.approx(2.5, rel=1e-9)
+
+
 def test_recalibration_file_without_bounds_runs_unclamped():
     """A parameter file written before the bounds existed has no ``lo_``/``hi_`` references:
     its discrepancy runs unclamped, as it did when it was written."""
     live = Recalibration().live({"k_s": [0.01] * 8, "d_A": [1.0] * 8, "lo_K1_A": [-2.0] * 8}, 1, 8)
     assert np.all(live.R["lo_d_A"] == -np.inf) and np.all(live.R["hi_d_A"] == np.inf)
     assert np.all(live.R["hi_K1_A"] == np.inf) and np.all(live.R["lo_K1_A"] == -2.0)
+    assert np.all(live.R["E_hi"] == np.inf)
 
 
 def test_live_amplitude_tracker_is_the_offline_rule():

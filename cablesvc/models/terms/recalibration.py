@@ -98,7 +98,10 @@ class Recalibration(Term):
     The last columns are 002 eq 8's damping rate law sgn(v) |v|^a (:func:`rate_power`,
     v_ref = 1 mm/s) with its level free instead of S_a / (A (A w)^a l pi): c_ra [N at
     v_ref], and a level growing with the elongation's envelope E [mm] (:func:`envelope`:
-    another amplitude estimate than the last reversal points), c_ra_e [N/mm]. The exponents
+    another amplitude estimate than the last reversal points), c_ra_e [N/mm], E held at the
+    largest value it took on the training ticks (reference ``E_hi``; offline and live: a
+    level fitted on 2 mm of envelope does not grow without limit when the robot later
+    covers 20 mm). The exponents
     span dry friction (a = 0) to a weak rate dependence; together they stand for an
     exponent up to about 0.5 over a trajectory's speeds, and stay well below a viscous
     force's 1, which keeps a part of its own. An identified baseline's damping is the loop
@@ -129,14 +132,14 @@ class Recalibration(Term):
     params = ("o", "k_s", "a_h", "c2", "c3", "K1_A", "d_A", *_RATE)
     units = ("N", "-", "-", "N", "N", "N/m^2", "N/m", *("N" for _ in RATE_EXPONENTS),
              *("N/mm" for _ in RATE_EXPONENTS))
-    ref_names = ("x_mean", "x_scale", "h0", "h1", "h2", "h3", "A_mean",
+    ref_names = ("x_mean", "x_scale", "h0", "h1", "h2", "h3", "A_mean", "E_hi",
                  *(f"{side}_{n}" for n in _HELD for side in ("lo", "hi")))
     owns_nuisance = True
     held = _HELD
 
     def refs(self, s, c, h):
         R = {**_backbone_refs(s, c), "A_mean": s.train_mean(s.amplitude[:, c]),
-             "has_A": float(amplitude_varies(s, c))}
+             "has_A": float(amplitude_varies(s, c)), "E_hi": float(np.max(envelope(s.x[:, c])[s.train]))}
         amp = np.empty((len(_HELD), s.n))
         _AMPLITUDE.columns(cable_view(s, c), R, h, amp)
         for n, v in zip(_HELD, amp):
@@ -160,6 +163,7 @@ class Recalibration(Term):
         for n, col in zip(_HELD, out[5:7]):              # ... held within their support
             np.maximum(col, R[f"lo_{n}"], out=col)
             np.minimum(col, R[f"hi_{n}"], out=col)
+        np.minimum(env, R["E_hi"], out=env)              # the level grows no further than fitted
         k = len(RATE_EXPONENTS)
         for a, col, col_e in zip(RATE_EXPONENTS, out[7:7 + k], out[7 + k:]):
             rate_power(g.v, a, col)                      # 002 eq 8's damping rate law, its level free
@@ -167,6 +171,8 @@ class Recalibration(Term):
 
     def live(self, table, lanes, m):
         lt = _RecalibrationLive(self, table, lanes, m)
+        if "E_hi" not in table:                          # a file without it: the envelope unheld
+            lt.R["E_hi"].fill(np.inf)
         for n in _HELD:                                  # a file without the bounds: unclamped
             for side, unbounded in (("lo", -np.inf), ("hi", np.inf)):
                 if f"{side}_{n}" not in table:
