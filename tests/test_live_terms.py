@@ -159,14 +159,17 @@ def test_recalibration_damping_level_stops_growing_beyond_the_envelope_it_was_fi
     """Live, the elongation ramps 5 mm at 1 mm/s (envelope 2.5 mm) on a cable whose damping
     level grows 1 N per mm of envelope, fitted up to 1 mm: the force stops at 1 N; a file
     without the bound lets it reach 2.5 N."""
-    def last_force(table):
+    def last_force(table, bad=None):
         stack = TermStack([Recalibration()], {"baseline": table}, 1)
         zero = np.zeros((1, 1))
         for k in range(501):
-            f = stack.step(0.01 * k, zero, np.full((1, 1), 1e-5 * k), zero, zero, zero, None)
+            x = np.nan if k == bad else 1e-5 * k
+            f = stack.step(0.01 * k, zero, np.full((1, 1), x), zero, zero, zero, None)
         return float(f[0, 0])
     assert last_force({"c_r0_e": [1.0], "E_hi": [1.0]}) == pytest.approx(1.0, rel=1e-9)
     assert last_force({"c_r0_e": [1.0]}) == pytest.approx(2.5, rel=1e-9)
+    # a non-finite reading mid-ramp does not end the envelope
+    assert last_force({"c_r0_e": [1.0]}, bad=100) == pytest.approx(2.5, rel=1e-9)
 
 
 def test_recalibration_file_without_bounds_runs_unclamped():

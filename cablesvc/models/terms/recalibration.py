@@ -75,8 +75,17 @@ def rate_power(v: np.ndarray, alpha: Any, out: np.ndarray) -> np.ndarray:
 def envelope(x: np.ndarray) -> np.ndarray:
     """The elongation's envelope [mm] (N, ...): half the range x has covered from the first
     tick to each tick (the running peak-to-peak / 2), another estimate of the excitation
-    amplitude than 002's last reversal points."""
-    return 0.5e3 * (np.maximum.accumulate(x, axis=0) - np.minimum.accumulate(x, axis=0))
+    amplitude than 002's last reversal points. A non-finite elongation is passed over (as
+    live: one bad reading does not end the envelope)."""
+    return 0.5e3 * (np.fmax.accumulate(x, axis=0) - np.fmin.accumulate(x, axis=0))
+
+
+def _largest(a: np.ndarray, mask: np.ndarray) -> float:
+    """The largest finite value of ``a`` on ``mask`` (of all of ``a`` when the mask is
+    empty; 0 when none is finite)."""
+    v = a[mask] if np.any(mask) else a
+    v = v[np.isfinite(v)]
+    return float(v.max()) if v.size else 0.0
 
 
 #: the discrepancy's amplitude columns (the law of the amplitude term, columns 5 and 6 of
@@ -101,10 +110,9 @@ class Recalibration(Term):
     another amplitude estimate than the last reversal points), c_ra_e [N/mm], E held at the
     largest value it took on the training ticks (reference ``E_hi``; offline and live: a
     level fitted on 2 mm of envelope does not grow without limit when the robot later
-    covers 20 mm). The exponents
-    span dry friction (a = 0) to a weak rate dependence; together they stand for an
-    exponent up to about 0.5 over a trajectory's speeds, and stay well below a viscous
-    force's 1, which keeps a part of its own. An identified baseline's damping is the loop
+    covers 20 mm). The exponents span dry friction (a = 0) to a weak rate dependence;
+    together they stand for an exponent up to about 0.5 over a trajectory's speeds, and
+    stay well below a viscous force's 1, which keeps a part of its own. An identified baseline's damping is the loop
     area of millimetre sines at one working point; along a trajectory its amplitude
     normalisation is the least reliable part of its law (issue 15 lists "another amplitude
     estimator" among the model-form errors of a real cable).
@@ -139,7 +147,7 @@ class Recalibration(Term):
 
     def refs(self, s, c, h):
         R = {**_backbone_refs(s, c), "A_mean": s.train_mean(s.amplitude[:, c]),
-             "has_A": float(amplitude_varies(s, c)), "E_hi": float(np.max(envelope(s.x[:, c])[s.train]))}
+             "has_A": float(amplitude_varies(s, c)), "E_hi": _largest(envelope(s.x[:, c]), s.train)}
         amp = np.empty((len(_HELD), s.n))
         _AMPLITUDE.columns(cable_view(s, c), R, h, amp)
         for n, v in zip(_HELD, amp):
@@ -208,8 +216,8 @@ class _RecalibrationLive(LiveTerm):
             np.copyto(self.hi, g.x)
             np.copyto(self.lo, g.x)
             self.started[0] = True
-        np.maximum(self.hi, g.x, out=self.hi)
-        np.minimum(self.lo, g.x, out=self.lo)
+        np.fmax(self.hi, g.x, out=self.hi)               # a non-finite reading is passed over
+        np.fmin(self.lo, g.x, out=self.lo)
         np.subtract(self.hi, self.lo, out=self.env)
         np.multiply(self.env, 0.5e3, out=self.env)
         self.term.law(g, self.R, self.H, self.env, self.cols)
