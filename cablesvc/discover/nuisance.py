@@ -44,6 +44,7 @@ from __future__ import annotations
 from typing import Any
 
 from cablesvc.models.terms import Recalibration, hysteretic_part
+from cablesvc.models.terms.recalibration import DAMPING_LEVELS, DAMPING_PER_MM
 
 __all__ = ["Recalibration", "hysteretic_part", "describe_recalibration"]
 
@@ -53,8 +54,8 @@ def describe_recalibration(params: dict[str, Any]) -> str:
     parts = [f"stiffness {100.0 * params.get('k_s', 0.0):+.1f} %",
              f"pretension/offset {params.get('o', 0.0):+.2f} N",
              f"loop area {100.0 * params.get('a_h', 0.0):+.0f} %"]
-    level = sum(v for k, v in params.items() if k.startswith("c_r") and not k.endswith("_e"))
-    per_mm = sum(v for k, v in params.items() if k.startswith("c_r") and k.endswith("_e"))
+    level = sum(params.get(n, 0.0) for n in DAMPING_LEVELS)
+    per_mm = sum(params.get(n, 0.0) for n in DAMPING_PER_MM)
     if level or per_mm:
         parts.append(f"damping at 1 mm/s {level:+.2f} N and {per_mm:+.2f} N per mm of envelope")
     return ", ".join(parts)

@@ -55,9 +55,11 @@ V_LIN = 1e-5
 #: the rate exponents alpha of the damping columns (002 eq 8: alpha = 0 is dry friction):
 #: well below a viscous force's 1, so that a Kelvin-Voigt damper keeps a part of its own
 RATE_EXPONENTS = (0.0, 0.25)
-#: the damping columns: per exponent, the rate law with a free level, then the same with a
-#: level that grows with the elongation's envelope
-_RATE = (*(f"c_r{int(100 * a)}" for a in RATE_EXPONENTS), *(f"c_r{int(100 * a)}_e" for a in RATE_EXPONENTS))
+#: the damping columns: per exponent, the rate law with a free level [N at V_REF] ...
+DAMPING_LEVELS = tuple(f"c_r{int(100 * a)}" for a in RATE_EXPONENTS)
+#: ... then the same with a level that grows with the elongation's envelope [N/mm]
+DAMPING_PER_MM = tuple(f"{n}_e" for n in DAMPING_LEVELS)
+_RATE = DAMPING_LEVELS + DAMPING_PER_MM
 
 
 def rate_power(v: np.ndarray, alpha: Any, out: np.ndarray) -> np.ndarray:
