@@ -162,7 +162,8 @@ class Recalibration(Term):
     @staticmethod
     def law(g, R, h, env, out):
         """The columns (p, ...) into ``out`` from the signals ``g`` and the elongation's
-        envelope ``env`` [mm] (:func:`envelope` offline, :class:`_RecalibrationLive` live)."""
+        envelope ``env`` [mm] (:func:`envelope` offline, :class:`_RecalibrationLive` live),
+        which is clamped at ``E_hi`` in place: callers pass an array of their own."""
         o, ks, ah, c2 = out[:4]
         o.fill(1.0)
         np.copyto(ks, g.f0)
