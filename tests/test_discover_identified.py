@@ -5,6 +5,7 @@ sensor error from a cable-model error, the verdict line and ``--calib``."""
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -508,3 +509,29 @@ def test_travel_probe_finds_a_force_that_repeats_with_one_cables_travel():
         else:
             assert pr["gain"] < 0.5 * PERIODIC_GAIN_MIN, (c, pr)
     assert travel_periods(3.9 * PERIOD_MIN).size == 0          # fewer than four turns of the shortest period
+
+
+def test_block_screen_names_an_effect_that_stands_out_above_the_robots_model_form():
+    # a term that leaves its cable no worse than the robot's typical excess and gains at
+    # least three times it is named although it explains less than 90 % of its cable's
+    # excess (that cable's own share of the model form stays); nothing else changes
+    from cablesvc.discover.screen import BlockScreen, typical_excess
+    screen = BlockScreen()
+    t = {"gain": 6.0, "before": 8.0}                         # excess 7, share 0.857
+    assert not screen._ok(t, 0.001)                          # the share rule alone
+    assert screen._ok(t, 0.001, typical=1.5)                 # leaves 1.0 <= 1.5, gains 6 >= 4.5
+    assert not screen._ok(t, 0.001, typical=2.5)             # gains less than 3 x 2.5
+    assert not screen._ok(t, 0.001, typical=0.8)             # leaves more than the typical cable
+    assert not screen._ok(t, 0.2, typical=1.5)               # still needs its block test
+    assert not screen._ok(t, 0.001, share=0.9, typical=1.5)  # a given share is the share alone
+    assert not BlockScreen(typical_gain=math.inf)._ok(t, 0.001, typical=1.5)
+    # the least gain it accepts is the one required_gain reports, for both routes
+    for excess, typ in ((0.5, 1.0), (1.0, 1.0), (3.0, 1.0), (0.2, 0.0), (2.0, 4.0)):
+        g = screen.required_gain(excess, typ)
+        assert screen._ok({"gain": g * (1 + 1e-9), "before": 1.0 + excess + g}, 0.001, typical=typ)
+        assert not screen._ok({"gain": 0.97 * g, "before": 1.0 + excess + 0.97 * g}, 0.001, typical=typ)
+    assert screen.required_gain(1.0, 1.0) == pytest.approx(3.0)
+    assert screen.required_gain(1.0) == pytest.approx(9.0)
+    # the typical excess is the median cable's, beyond the noise, never below 0
+    e = {c: [np.full(50, a), np.full(50, a)] for c, a in enumerate((0.1, 0.2, 0.3, 1.0, 0.05))}
+    assert typical_excess(e, np.full(5, 0.1)) == pytest.approx(3.0)     # 0.2 N: 4 noise variances

@@ -29,8 +29,11 @@ force enters):
   baseline's model form; the pipeline takes the median over the recording's cables,
   since a cable's own excess holds its own effect). An effect of RMS E leaves about
   g = free E^2 / sigma^2 after the recalibration, so it is named only when
-  E >= sigma sqrt(need / free), need = max(gain_min, share_min excess / (1 - share_min))
-  (:meth:`~cablesvc.discover.screen.BlockScreen.required_gain`, beside the rule it inverts).
+  E >= sigma sqrt(need / free), need = max(gain_min, share_min excess / (1 - share_min)),
+  or, on a cable left no worse than the robot's typical excess, at most max(gain_min,
+  typical_gain x typical) (the screen's other route: the effect stands out above what
+  the baseline leaves on the median cable;
+  :meth:`~cablesvc.discover.screen.BlockScreen.required_gain`, beside the rule it inverts).
   With a perfect baseline (excess 0) that is the floor, sigma sqrt(gain_min / free):
   below it no baseline, however good, lets the screen name the term. The limit with the
   baseline's model form is an estimate for a typical cable (the affected cable's own
@@ -159,7 +162,8 @@ def unmimicked_share(nuisance: np.ndarray, cols: np.ndarray, blocks: Optional[li
 
 def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list[np.ndarray], noise: np.ndarray,
                      excess: Any, screen: BlockScreen,
-                     cache: Optional[DesignCache] = None) -> dict[tuple[str, int], dict[str, float]]:
+                     cache: Optional[DesignCache] = None,
+                     typical: Optional[float] = None) -> dict[tuple[str, int], dict[str, float]]:
     """Per (term, cable) on which the term applies: ``free`` (share of its signature the
     recalibration ``nuisance`` cannot mimic on held-out ``blocks``, the screen's test units:
     index arrays of ticks), ``floor_rms_N`` and ``limit_rms_N`` (the smallest effect RMS
@@ -170,7 +174,8 @@ def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list
     beyond the noise on an effect-free cable, per cable (m,) or one value for all;
     ``screen`` the :class:`~cablesvc.discover.screen.BlockScreen` whose rule the limits invert
     (:meth:`~cablesvc.discover.screen.BlockScreen.required_gain`); ``cache`` its
-    :class:`~cablesvc.discover.select.DesignCache`, so designs are built once."""
+    :class:`~cablesvc.discover.select.DesignCache`, so designs are built once; ``typical``
+    the robot's typical excess the screen compared with (None: the share rule alone)."""
     ex = np.broadcast_to(np.asarray(excess, float), (s.m,))
     out: dict[tuple[str, int], dict[str, float]] = {}
     if not blocks:                  # too short for a single test block: nothing to say
@@ -186,7 +191,7 @@ def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list
         local.append(pos[np.asarray(b, int)])
 
     for c in range(s.m):
-        need = screen.required_gain(float(ex[c]))
+        need = screen.required_gain(float(ex[c]), typical)
         nd = cache.get(nuisance, s, c, {})
         N = nd.X[mask]
         if nd.fixed is not None:
