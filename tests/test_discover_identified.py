@@ -525,8 +525,12 @@ def test_block_screen_names_an_effect_that_stands_out_above_the_robots_model_for
     assert not screen._ok(t, 0.2, typical=1.5)               # still needs its block test
     assert not screen._ok(t, 0.001, share=0.9, typical=1.5)  # a given share is the share alone
     assert not BlockScreen(typical_gain=math.inf)._ok(t, 0.001, typical=1.5)
+    # and, like a term named beside another, at least gain_further (3 noise variances)
+    small = {"gain": 2.0, "before": 3.4}                     # excess 2.4, share 0.83
+    assert not screen._ok(small, 0.001, typical=0.5)
+    assert BlockScreen(gain_further=1.5)._ok(small, 0.001, typical=0.5)
     # the least gain it accepts is the one required_gain reports, for both routes
-    for excess, typ in ((0.5, 1.0), (1.0, 1.0), (3.0, 1.0), (0.2, 0.0), (2.0, 4.0)):
+    for excess, typ in ((0.5, 1.0), (1.0, 1.0), (3.0, 1.0), (0.2, 0.0), (2.0, 4.0), (0.3, 0.4)):
         g = screen.required_gain(excess, typ)
         assert screen._ok({"gain": g * (1 + 1e-9), "before": 1.0 + excess + g}, 0.001, typical=typ)
         assert not screen._ok({"gain": 0.97 * g, "before": 1.0 + excess + 0.97 * g}, 0.001, typical=typ)

@@ -33,7 +33,8 @@ while on effect-free cables a term explains a share of the model-form residual w
 Condition 2 has a second route (:meth:`BlockScreen._stands_out`): the term leaves its cable
 at no more than ``typical_left`` x the robot's typical excess T (what the nuisance leaves
 beyond the noise on the median cable, :func:`typical_excess`) and gains at least
-``typical_gain`` x T. The baseline's model form lies on every cable of a robot, a concealed
+``typical_gain`` x T and at least ``gain_further`` (3 noise variances: the two false terms this
+route first named on seed 4242 gained 0.94 and 2.06, the creep it was made for 14.3). The baseline's model form lies on every cable of a robot, a concealed
 effect on some; a term that brings its cable down to the typical level, by a gain well
 above it, has found an effect on top of that cable's own share of the model form. Replayed
 on every screen test of the development seeds 271828 and 8675309 (280 cases), kappa = 1 and
@@ -164,12 +165,14 @@ class BlockScreen:
         """Condition 2's other route: the term leaves the cable at no more than
         ``typical_left`` x the robot's ``typical`` excess (what the nuisance leaves beyond
         the noise on the median cable [noise variances]) and gains at least
-        ``typical_gain`` x it."""
+        ``typical_gain`` x it, and at least ``gain_further``: like a term named beside
+        another, it is named beside a part of the model form it does not explain."""
         if typical is None or not math.isfinite(typical):
             return False
         t = max(float(typical), 0.0)
         left = max(test["before"] - 1.0, 0.0) - test["gain"]
-        return test["gain"] >= self.typical_gain * t and left <= self.typical_left * t
+        return (test["gain"] >= max(self.typical_gain * t, self.gain_further)
+                and left <= self.typical_left * t)
 
     def _ok(self, test: dict[str, float], p: float, share: Optional[float] = None, further: bool = False,
             typical: Optional[float] = None) -> bool:
@@ -187,14 +190,14 @@ class BlockScreen:
         a cable where the nuisance leaves ``excess`` noise variances beyond the noise
         (before = 1 + excess + gain): max(gain_min, share_min excess / (1 - share_min)),
         or, where the robot's ``typical`` excess is given and ``excess`` is at most
-        ``typical_left`` x it, max(gain_min, typical_gain x typical) if that is less
-        (:mod:`cablesvc.discover.detectability`)."""
+        ``typical_left`` x it, max(gain_min, gain_further, typical_gain x typical) if that
+        is less (:mod:`cablesvc.discover.detectability`)."""
         ex = max(float(excess), 0.0)
         need = math.inf if self.share_min >= 1.0 else max(self.gain_min, self.share_min * ex / (1.0 - self.share_min))
         if typical is not None and math.isfinite(typical):
             t = max(float(typical), 0.0)
             if ex <= self.typical_left * t:
-                need = min(need, max(self.gain_min, self.typical_gain * t))
+                need = min(need, max(self.gain_min, self.gain_further, self.typical_gain * t))
         return need
 
     def select(self, s: Signals, r: np.ndarray, terms: list[Term], train: np.ndarray, valid: np.ndarray,
