@@ -155,8 +155,7 @@ def test_limits_in_the_discovery_report(tmp_path):
             assert lim >= floor >= sigma * math.sqrt(0.25) * (1 - 1e-9)
             if math.isfinite(lim):      # one required gain each: a perfect baseline's, the model form's
                 assert (floor / sigma) ** 2 * free == pytest.approx(0.25)
-                typical = d.options["typical_excess_screen_noise_var"]
-                assert (lim / sigma) ** 2 * free == pytest.approx(BlockScreen().required_gain(excess, typical))
+                assert (lim / sigma) ** 2 * free == pytest.approx(BlockScreen().required_gain(excess, excess))
         assert row["min_floor_rms_N"] == min(row["floor_rms_N"].values())
         assert "even with a perfect baseline" in row["words"]
     # the creep's own cable: the limits of every term are there too, named or not

@@ -31,7 +31,7 @@ force enters):
   g = free E^2 / sigma^2 after the recalibration, so it is named only when
   E >= sigma sqrt(need / free), need = max(gain_min, share_min excess / (1 - share_min)),
   or, on a cable left no worse than the robot's typical excess, at most max(gain_min,
-  typical_gain x typical) (the screen's other route: the effect stands out above what
+  gain_further, typical_gain x typical) (the screen's other route: the effect stands out above what
   the baseline leaves on the median cable;
   :meth:`~cablesvc.discover.screen.BlockScreen.required_gain`, beside the rule it inverts).
   With a perfect baseline (excess 0) that is the floor, sigma sqrt(gain_min / free):

@@ -845,12 +845,8 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     # leaves what it leaves on the median cable (its model form: a cable's own excess
     # holds its own effect); reported for the terms not named (dead time is judged by the
     # forces' balance where it holds, which the recalibration cannot mimic)
-    before_c: dict[int, list[float]] = {}
-    for (n, c), v in tests.items():
-        before_c.setdefault(c, []).append(v["before"])
-    excess_c = np.array([max(float(np.median(b)) - 1.0, 0.0) for b in before_c.values()])
-    model_form_excess = float(np.median(excess_c)) if excess_c.size else 0.0
-    limits = detection_limits(s, cands, nuis, blocks, noise, model_form_excess, screen, cache, sel.typical)
+    model_form_excess = sel.typical         # the screen's typical excess (the median cable's)
+    limits = detection_limits(s, cands, nuis, blocks, noise, model_form_excess, screen, cache, model_form_excess)
     skip = set(named) | ({lag.name} if (eq["holds"] and lag is not None) else set())
     detection = describe_limits(limits, skip=skip, labels={t.name: t.label for t in cands})
     sel_info = {"tests": {f"{n}@{c}": dict(v) for (n, c), v in tests.items()},
@@ -858,7 +854,7 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                 "share_min": screen.share_min, "gain_min": screen.gain_min,
                 "unexplained_floor_noise_var": floor, "typical_excess_noise_var": typical,
                 "travel_probe": {str(c): v for c, v in probes.items()},
-                "model_form_excess_noise_var": model_form_excess, "typical_excess_screen_noise_var": sel.typical,
+                "model_form_excess_noise_var": model_form_excess,
                 "limits": {f"{n}@{c}": {"free": v["free"], "floor_rms_N": v["floor_rms_N"],
                                         "limit_rms_N": v["limit_rms_N"]} for (n, c), v in limits.items()}}
     return Discovery(robot=rob.name, baseline=base, signals=s, residual=r,

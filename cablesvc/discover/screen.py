@@ -115,14 +115,15 @@ __all__ = ["BlockScreen", "ScreenResult", "typical_excess"]
 
 def typical_excess(errors: dict[int, list[np.ndarray]], noise: np.ndarray) -> float:
     """The median over cables of what held-out ``errors`` (per cable, per block) leave
-    beyond the noise variance, in noise variances (0 at least per cable): the robot's
-    typical excess, the baseline's model form where fewer than half its cables carry an
-    effect."""
+    beyond the noise variance, in noise variances (0 at least per cable; per cable the
+    ``before`` of :func:`~cablesvc.discover.evidence.block_gain_test`, minus 1): the
+    robot's typical excess, the baseline's model form where fewer than half its cables
+    carry an effect."""
     ex = []
     for c, e in errors.items():
         if e:
             var = max(float(noise[c]), 1e-12) ** 2
-            ex.append(max(float(np.mean([np.mean(a * a) for a in e])) / var - 1.0, 0.0))
+            ex.append(max(float(np.mean([float(np.mean(a * a)) / var for a in e])) - 1.0, 0.0))
     return float(np.median(ex)) if ex else 0.0
 
 
