@@ -80,13 +80,20 @@ class _Held:
     (its least-squares residual on them, fitted ticks): the recalibration's
     (A - mean A) xi is, where A does not vary, -mean A xi, which its backbone columns
     express exactly; holding the raw column there would break that cancellation instead
-    of holding the amplitude's own correction. The projections use per-block Gram
-    matrices, so a fold costs one small solve, not a least squares over the recording."""
+    of holding the amplitude's own correction. The other columns are those of the design
+    that holds the column (the recalibration's own), not those of a term tested beside it:
+    a term's column that lies outside the fold's range on the block left out (time, on the
+    first block) moved the held part there, and the hold, not the term, decided the test
+    (a true creep on development seed 271828 lost 158 noise variances on its first block
+    that way). The projections use per-block Gram matrices, so a fold costs one small
+    solve, not a least squares over the recording."""
 
     def __init__(self, designs: list, blocks: list[np.ndarray]):
         self.cols = [(k, j) for k, d in enumerate(designs) if d.p for j, n in enumerate(d.names) if n in d.held]
         hold = set(self.cols)
-        other = [d.X[:, [j for j in range(d.p) if (k, j) not in hold]] for k, d in enumerate(designs) if d.p]
+        own = {k for k, _j in self.cols}
+        other = [d.X[:, [j for j in range(d.p) if (k, j) not in hold]] for k, d in enumerate(designs)
+                 if d.p and k in own]
         Xo = np.hstack(other)
         scale = np.sqrt(np.mean(Xo * Xo, axis=0))
         self.Xo = Xo / np.where(scale > 0, scale, 1.0)
