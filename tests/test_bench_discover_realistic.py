@@ -168,6 +168,25 @@ def test_truth_damping_scales_only_the_damping():
     assert out.returncode == 2 and "--truth-damping" in out.stderr
 
 
+def test_duration_sets_the_case_recordings_length(robot):
+    # --duration: every planned case carries it to the worker, the recording has that
+    # length at the bench's rate, and the effect is still drawn at 3-10 x the noise over it
+    from cablesvc.bench.discover_cases import DURATION, RATE
+    assert {p.duration for p in case_plan(4, 5)} == {DURATION}
+    assert {p.duration for p in case_plan(4, 5, duration=45.0)} == {45.0}
+    case = make_realistic_case("single", ["viscous"], 17, robot=robot, rng=np.random.default_rng(5), duration=21.0)
+    t = case.recording.t
+    assert abs((t[-1] - t[0]) - 21.0) <= 2.0 / RATE and abs(float(np.median(np.diff(t))) - 1.0 / RATE) < 1e-9
+    assert 2.7 * NOISE < case.effect_rms["viscous"] < 11 * NOISE
+    for bad in ("10", "nan"):
+        out = subprocess.run([sys.executable, "-m", "cablesvc", "bench", "discover", "--duration", bad],
+                             capture_output=True, text=True, timeout=120)
+        assert out.returncode == 2 and "--duration" in out.stderr and ">= 20" in out.stderr
+    out = subprocess.run([sys.executable, "-m", "cablesvc", "bench", "discover", "--ideal", "--duration", "40"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and "realistic bench only" in out.stderr
+
+
 def test_ool_scoring():
     from cablesvc.bench.discover import ool_handled
     from cablesvc.discover.pipeline import Finding

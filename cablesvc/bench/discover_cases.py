@@ -241,9 +241,11 @@ class _Traj:
     params: dict[str, Any]
 
 
-def draw_trajectory(sr: SimRobot, seed: int, rng: np.random.Generator) -> _Traj:
+def draw_trajectory(sr: SimRobot, seed: int, rng: np.random.Generator, duration: float = DURATION) -> _Traj:
+    """A trajectory of ``duration`` s for robot ``sr`` (point-to-point or sines, drawn from
+    ``rng``; poses, motor lengths and temperature from ``seed``)."""
     geom = sr.geom
-    ctx = ScenarioContext(geom=geom, rate=RATE, duration=DURATION, rng=np.random.default_rng([seed, 1]),
+    ctx = ScenarioContext(geom=geom, rate=RATE, duration=float(duration), rng=np.random.default_rng([seed, 1]),
                           elastic=_nominal_elastic(geom))
     kind = "ptp" if rng.random() < 0.6 else "sines"
     plan = trajectory(ctx, kind=kind, min_tension=TENSION[0], max_tension=TENSION[1])
@@ -317,11 +319,13 @@ def _effect_rms(run: EquilibriumRun, sr: SimRobot, tr: _Traj, cables: tuple[int,
 
 def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Optional[SimRobot] = None,
                         robot_index: int = 0, fleet_seed: int = 0,
-                        rng: Optional[np.random.Generator] = None) -> RealisticCase:
+                        rng: Optional[np.random.Generator] = None, duration: float = DURATION) -> RealisticCase:
     """Simulate one case: ``kind`` in :data:`KINDS`, ``names`` the concealed effects (twin
     effect names, or for ``ool`` one of :data:`~cablesvc.bench.truth.OOL_EFFECTS`),
     ``seed`` the trajectory/noise seed, ``robot`` (default: robot ``robot_index`` of fleet
-    ``fleet_seed``), ``rng`` the draws of cables and magnitudes (default from ``seed``)."""
+    ``fleet_seed``), ``rng`` the draws of cables and magnitudes (default from ``seed``),
+    ``duration`` [s] the recording's length (the effects' RMS is drawn against the noise over
+    the whole recording, whatever its length)."""
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     unknown = [n for n in names if n not in EFFECTS and n not in OOL_EFFECTS]
@@ -333,7 +337,7 @@ def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Option
     t1 = time.perf_counter()
     geom = sr.geom
     m = geom.n_cables
-    tr = draw_trajectory(sr, seed, rng)
+    tr = draw_trajectory(sr, seed, rng, duration)
     base = _run(sr, tr, [])
     effects, rms, mags = [], {}, {}
     for name in names:
@@ -393,7 +397,7 @@ def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Option
 @dataclass
 class CaseSpec:
     """One planned case: ``kind``, effect ``names``, ``seed``, ``robot_index``, ``index``,
-    and the truth's ``damping`` scale (:func:`calibrated_robot`)."""
+    the truth's ``damping`` scale (:func:`calibrated_robot`) and the recording's ``duration`` [s]."""
 
     kind: str
     names: list[str]
@@ -401,9 +405,11 @@ class CaseSpec:
     robot_index: int
     index: int
     damping: float = 1.0
+    duration: float = DURATION
 
 
-def case_plan(cases: int = 40, seed: int = 0, fleet: int = 4, damping: float = 1.0) -> list[CaseSpec]:
+def case_plan(cases: int = 40, seed: int = 0, fleet: int = 4, damping: float = 1.0,
+              duration: float = DURATION) -> list[CaseSpec]:
     """``cases`` single-effect cases (the seven twin effects in turn), as many pairs
     (pairs of different effects, drawn in turn from a shuffled list of all pairs), as many
     controls, and ``cases // 2`` (at least 1) out-of-library cases (the three in turn);
@@ -420,7 +426,8 @@ def case_plan(cases: int = 40, seed: int = 0, fleet: int = 4, damping: float = 1
     out = []
     for i, (kind, nm) in enumerate(plan):
         out.append(CaseSpec(kind=kind, names=nm, seed=int(rng.integers(0, 2 ** 31 - 1)),
-                            robot_index=i % max(1, int(fleet)), index=i, damping=float(damping)))
+                            robot_index=i % max(1, int(fleet)), index=i, damping=float(damping),
+                            duration=float(duration)))
     return out
 
 
