@@ -471,7 +471,8 @@ def _main_realistic(args) -> int:
     if cb is not None:
         print(f"identified baseline on controls: test RMS residual {cb:.1f} x the noise (median)")
     sp = res["seconds_per_case"]
-    print(f"{res['cases']} cases on {res['fleet']} robots in {res['seconds']:.0f} s; per case: simulate "
+    print(f"{res['cases']} cases of {res['duration_s']:g} s on {res['fleet']} robots (truth damping x "
+          f"{res['truth_damping']:g}) in {res['seconds']:.0f} s; per case: simulate "
           f"{sp['simulate']:.2f} s, identify {sp['identify']:.2f} s, discover {sp['discover']:.2f} s")
     return 0
 
