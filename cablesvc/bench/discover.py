@@ -321,8 +321,8 @@ def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Opti
     ``damping`` scales the truth law's damping (:func:`~cablesvc.bench.discover_cases.calibrated_robot`);
     ``duration`` [s] is each recording's length (default
     :data:`~cablesvc.bench.discover_cases.DURATION`, 30 s)."""
-    from cablesvc.bench.discover_cases import DURATION, case_plan
-    duration = DURATION if duration is None else float(duration)
+    from cablesvc.bench.discover_cases import DURATION as CASE_DURATION, case_plan
+    duration = CASE_DURATION if duration is None else float(duration)
     t0 = time.perf_counter()
     plan = case_plan(cases, seed, fleet, damping, duration)
     per_case = []
