@@ -168,6 +168,44 @@ def test_truth_damping_scales_only_the_damping():
     assert out.returncode == 2 and "--truth-damping" in out.stderr
 
 
+def test_boucwen_truth_is_a_rate_independent_bounded_loop():
+    # --truth-hysteresis boucwen: the same robot's draws, the envelope damping replaced by a
+    # Bouc-Wen loop of the same level (beta s k a_sat at saturation), rate-independent
+    import dataclasses
+    from cablesvc.bench.discover_cases import robot_variant
+    from cablesvc.bench.truth import backbone_force, cable_law
+    a, b = robot_variant(1, 5), robot_variant(1, 5, hysteresis="boucwen")
+    assert b.hysteresis == "boucwen" and a.hysteresis == "envelope"
+    for f in ("k", "scale", "c", "x_s", "beta", "a_sat", "alpha", "t_env", "jk", "jr", "km", "tau"):
+        np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
+    # the loop alone: no Jenkins, no Maxwell branch
+    v = dataclasses.replace(b, jk=np.zeros_like(b.jk), km=np.zeros_like(b.km))
+    m = v.n_cables
+    level = v.beta * v.scale * v.k * v.a_sat                    # [N] the loop's saturated force
+    loops = []
+    for hz in (0.2, 2.0):
+        dt = 0.001
+        t = np.arange(0.0, 3.0 / hz, dt)
+        x = (0.01 * np.sin(2 * np.pi * hz * t))[:, None] * np.ones(m)        # +-10 mm
+        h = cable_law(v, x, dt) - backbone_force(v, x)
+        assert np.all(np.abs(h) <= level * (1 + 1e-6)), "the Bouc-Wen state exceeds its yield"
+        # the last cycle against the phase: its area (dissipation) and the force at the peak
+        last = t >= 2.0 / hz
+        ph = ((t[last] * hz) % 1.0)
+        area = np.sum(h[last][:-1] * np.diff(x[last], axis=0), axis=0)     # the work per cycle [J]
+        assert np.all(area > 0.5 * 4 * level * 0.01), (area, level)  # it dissipates: a loop, not a line
+        loops.append(np.array([np.interp(q, ph, h[last, 0]) for q in (0.05, 0.25, 0.5, 0.75)]))
+    # the same loop at ten times the rate (rate-independent), unlike the envelope damping
+    np.testing.assert_allclose(loops[0], loops[1], atol=0.02 * level[0])
+    assert {p.hysteresis for p in case_plan(4, 5, hysteresis="boucwen")} == {"boucwen"}
+    assert {p.hysteresis for p in case_plan(4, 5)} == {"envelope"}
+    with pytest.raises(ValueError, match="boucwen"):
+        robot_variant(1, 5, hysteresis="plastic")
+    out = subprocess.run([sys.executable, "-m", "cablesvc", "bench", "discover", "--ideal", "--truth-hysteresis",
+                          "boucwen"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and "realistic bench only" in out.stderr
+
+
 def test_duration_sets_the_case_recordings_length(robot):
     # --duration: every planned case carries it to the worker, the recording has that
     # length at the bench's rate, and the effect is still drawn at 3-10 x the noise over it

@@ -229,7 +229,7 @@ def _realistic_row(spec: Any, seed: int) -> dict[str, Any]:
     processes can run it."""
     from cablesvc.bench.discover_cases import NOISE as RN, calibrated_robot, make_realistic_case
     from cablesvc.discover import discover
-    sr = calibrated_robot(spec.robot_index, seed, spec.damping)
+    sr = calibrated_robot(spec.robot_index, seed, spec.damping, spec.hysteresis)
     case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
                                rng=np.random.default_rng([seed, 7, spec.index]), duration=spec.duration)
     t1 = time.perf_counter()
@@ -314,17 +314,20 @@ def _realistic_rows(plan: list[Any], seed: int, workers: int, progress: Optional
 
 
 def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Optional[Any] = None,
-                  workers: int = 1, damping: float = 1.0, duration: Optional[float] = None) -> dict[str, Any]:
+                  workers: int = 1, damping: float = 1.0, duration: Optional[float] = None,
+                  hysteresis: str = "envelope") -> dict[str, Any]:
     """Realistic bench: the plan of :func:`cablesvc.bench.discover_cases.case_plan` (``cases``
     singles, pairs and controls, ``cases // 2`` out-of-library cases) on ``fleet`` robots,
     run by ``workers`` processes (the result does not depend on it, but the seconds do);
     ``damping`` scales the truth law's damping (:func:`~cablesvc.bench.discover_cases.calibrated_robot`);
+    ``hysteresis`` the truth law's loop ("envelope" or "boucwen",
+    :func:`~cablesvc.bench.discover_cases.robot_variant`);
     ``duration`` [s] is each recording's length (default
     :data:`~cablesvc.bench.discover_cases.DURATION`, 30 s)."""
     from cablesvc.bench.discover_cases import DURATION as CASE_DURATION, case_plan
     duration = CASE_DURATION if duration is None else float(duration)
     t0 = time.perf_counter()
-    plan = case_plan(cases, seed, fleet, damping, duration)
+    plan = case_plan(cases, seed, fleet, damping, duration, hysteresis)
     per_case = []
     conf: dict[str, dict[str, int]] = {}
     split = {"simulate": 0.0, "identify": 0.0, "discover": 0.0}
@@ -383,7 +386,7 @@ def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Opti
         "fleet": len(robots), "seconds_split": split,
         "seconds_per_case": {k: v / n for k, v in split.items()},
         "seconds": time.perf_counter() - t0, "seed": seed, "workers": int(workers),
-        "truth_damping": float(damping), "duration_s": duration,
+        "truth_damping": float(damping), "duration_s": duration, "truth_hysteresis": str(hysteresis),
     }
 
 
@@ -420,6 +423,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help="realistic: scale of the truth law's rate-dependent damping, the largest part of "
                         "what the identified baseline leaves on a trajectory (default 1; 0.2 gives a milder "
                         "model-form error, controls about 1.2 x the noise after recalibration instead of 2.8 x)")
+    p.add_argument("--truth-hysteresis", choices=("envelope", "boucwen"), default="envelope",
+                   help="realistic: the truth law's loop: 'envelope' (default), a damping whose level "
+                        "follows a running envelope of the elongation and a power of the speed; "
+                        "'boucwen', a rate-independent Bouc-Wen loop of the same level in its place "
+                        "(another model-form error of the identified baseline, for checking that "
+                        "discovery does not lean on the default's form)")
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="realistic: length of each case recording in seconds (default 30; at least 20: a "
                         "shorter one gives the block tests too few blocks to name anything after Holm's "
@@ -442,7 +451,8 @@ def _main_realistic(args) -> int:
             bar.update(task, total=n, completed=i, description=text)
 
         res = run_realistic(args.cases, args.seed, args.fleet, progress=prog, workers=args.workers,
-                            damping=args.truth_damping, duration=getattr(args, "duration", None))
+                            damping=args.truth_damping, duration=getattr(args, "duration", None),
+                            hysteresis=getattr(args, "truth_hysteresis", "envelope"))
     if args.json:
         print(json.dumps(jsonable(res), indent=1, default=float))   # an infinite limit as null
         return 0
@@ -471,8 +481,8 @@ def _main_realistic(args) -> int:
     if cb is not None:
         print(f"identified baseline on controls: test RMS residual {cb:.1f} x the noise (median)")
     sp = res["seconds_per_case"]
-    print(f"{res['cases']} cases of {res['duration_s']:g} s on {res['fleet']} robots (truth damping x "
-          f"{res['truth_damping']:g}) in {res['seconds']:.0f} s; per case: simulate "
+    print(f"{res['cases']} cases of {res['duration_s']:g} s on {res['fleet']} robots (truth {res['truth_hysteresis']} "
+          f"loop x {res['truth_damping']:g}) in {res['seconds']:.0f} s; per case: simulate "
           f"{sp['simulate']:.2f} s, identify {sp['identify']:.2f} s, discover {sp['discover']:.2f} s")
     return 0
 
@@ -498,6 +508,10 @@ def main(args) -> int:
     if du is not None and getattr(args, "ideal", False):
         print("--duration applies to the realistic bench only (the ideal bench's recordings are "
               f"{DURATION:g} s)", file=sys.stderr)
+        return 2
+    if getattr(args, "truth_hysteresis", "envelope") != "envelope" and getattr(args, "ideal", False):
+        print("--truth-hysteresis applies to the realistic bench only (the ideal bench's truth is the twin's "
+              "own model)", file=sys.stderr)
         return 2
     if not getattr(args, "ideal", False):
         return _main_realistic(args)

@@ -54,6 +54,7 @@ from typing import Any, Iterator, Optional
 import numpy as np
 
 from cablesvc.bench.truth import (
+    HYSTERESIS,
     OOL_EFFECTS,
     CableVariant,
     EquilibriumRun,
@@ -141,7 +142,7 @@ class SimRobot:
     seconds: dict[str, float]
 
 
-_FLEET: dict[tuple[int, int], SimRobot] = {}
+_FLEET: dict[tuple[int, int, float, str], SimRobot] = {}
 
 
 def _nominal_elastic(geom: Any) -> ElasticCurve:
@@ -150,24 +151,33 @@ def _nominal_elastic(geom: Any) -> ElasticCurve:
 
 
 def robot_variant(index: int, fleet_seed: int = 0, damping: float = 1.0,
-                  geom: Optional[RobotGeometry] = None) -> CableVariant:
+                  geom: Optional[RobotGeometry] = None, hysteresis: str = "envelope") -> CableVariant:
     """The true cable law of robot ``index`` of fleet ``fleet_seed`` (:func:`draw_variant`
-    about the robot file's EA / L at home), its damping ``beta`` scaled by ``damping``."""
+    about the robot file's EA / L at home), its damping ``beta`` scaled by ``damping``;
+    ``hysteresis`` the law's rate part (:data:`~cablesvc.bench.truth.HYSTERESIS`:
+    "envelope", the default, or "boucwen", a rate-independent Bouc-Wen loop of the same
+    level in its place; the other draws are the same)."""
     geom = geom if geom is not None else load_robot(ROBOT).geometry()
     k = np.asarray(geom.ea, float) / home_lengths(geom)
     variant = draw_variant(k, np.random.default_rng([fleet_seed, index, 41]))
     if damping != 1.0:
         variant = dataclasses.replace(variant, beta=variant.beta * float(damping))
+    if hysteresis not in HYSTERESIS:
+        raise ValueError(f"truth hysteresis must be one of {', '.join(HYSTERESIS)}, got {hysteresis!r}")
+    if hysteresis != variant.hysteresis:
+        variant = dataclasses.replace(variant, hysteresis=hysteresis)
     return variant
 
 
-def calibrated_robot(index: int, fleet_seed: int = 0, damping: float = 1.0) -> SimRobot:
+def calibrated_robot(index: int, fleet_seed: int = 0, damping: float = 1.0,
+                     hysteresis: str = "envelope") -> SimRobot:
     """Robot ``index`` of fleet ``fleet_seed``: its cable law, calibration recording and
     identified baseline (computed once per process, then cached). ``damping`` scales the
     truth law's rate-dependent damping h (``beta``), the largest part of what the
     identified baseline leaves on a trajectory: 1 as drawn; below 1 a milder model-form
-    error (the same robot otherwise, as the draws do not change)."""
-    key = (int(index), int(fleet_seed), float(damping))
+    error (the same robot otherwise, as the draws do not change). ``hysteresis``: the truth
+    law's loop (:func:`robot_variant`)."""
+    key = (int(index), int(fleet_seed), float(damping), str(hysteresis))
     if key in _FLEET:
         return _FLEET[key]
     from cablesvc.identify.cable import identify_cable
@@ -175,7 +185,7 @@ def calibrated_robot(index: int, fleet_seed: int = 0, damping: float = 1.0) -> S
     rob = load_robot(ROBOT)
     geom = rob.geometry()
     home = home_lengths(geom)
-    variant = robot_variant(index, fleet_seed, damping, geom)
+    variant = robot_variant(index, fleet_seed, damping, geom, hysteresis)
     seed = int(np.random.default_rng([fleet_seed, index, 42]).integers(0, 2 ** 31 - 1))
     ctx = ScenarioContext(geom=geom, rate=RATE, duration=None, rng=np.random.default_rng([seed, 1]),
                           elastic=_nominal_elastic(geom))
@@ -406,10 +416,11 @@ class CaseSpec:
     index: int
     damping: float = 1.0
     duration: float = DURATION
+    hysteresis: str = "envelope"
 
 
 def case_plan(cases: int = 40, seed: int = 0, fleet: int = 4, damping: float = 1.0,
-              duration: float = DURATION) -> list[CaseSpec]:
+              duration: float = DURATION, hysteresis: str = "envelope") -> list[CaseSpec]:
     """``cases`` single-effect cases (the seven twin effects in turn), as many pairs
     (pairs of different effects, drawn in turn from a shuffled list of all pairs), as many
     controls, and ``cases // 2`` (at least 1) out-of-library cases (the three in turn);
@@ -427,7 +438,7 @@ def case_plan(cases: int = 40, seed: int = 0, fleet: int = 4, damping: float = 1
     for i, (kind, nm) in enumerate(plan):
         out.append(CaseSpec(kind=kind, names=nm, seed=int(rng.integers(0, 2 ** 31 - 1)),
                             robot_index=i % max(1, int(fleet)), index=i, damping=float(damping),
-                            duration=float(duration)))
+                            duration=float(duration), hysteresis=str(hysteresis)))
     return out
 
 

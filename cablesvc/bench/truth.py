@@ -33,6 +33,12 @@ same sensor noise, but
     time tau = 0.05-0.5 s): dy/dt = dx/dt - y / tau, integrated exactly for a
     piecewise-linear x. It makes the dynamic stiffness depend on the rate and relaxes
     during dwells.
+  - with ``hysteresis="boucwen"`` (``cablesvc bench discover --truth-hysteresis boucwen``)
+    the damping h(A_e) phi is replaced by a rate-independent Bouc-Wen loop of the same
+    level, beta s_i k_i z with dz = dx (1 - |z / z_y|^n (b sgn(dx z) + (1 - b))), z_y =
+    A_sat, n = 2, b = 0.75 (Bouc 1967, Wen 1976; the form of 001's hysteretic beam, not of
+    002 eq 8): another model-form error of the identified baseline, so that the bench does
+    not only reward a recalibration built for the envelope damping.
 
   Each simulated robot draws its own variant (:func:`draw_variant`). None of it uses
   cablesvc.models: the baseline family must not contain the truth.
@@ -113,6 +119,7 @@ class CableVariant:
     jr: np.ndarray
     km: np.ndarray
     tau: np.ndarray
+    hysteresis: str = "envelope"
 
     @property
     def n_cables(self) -> int:
@@ -123,7 +130,10 @@ class CableVariant:
         return self.scale * self.k + self.km
 
     def describe(self) -> dict[str, Any]:
-        return {"law": "non-polynomial backbone + envelope damping + Jenkins + Maxwell", "backbone": self.backbone,
+        rate = ("envelope damping" if self.hysteresis == "envelope"
+                else "Bouc-Wen hysteresis (rate-independent)")
+        return {"law": f"non-polynomial backbone + {rate} + Jenkins + Maxwell", "hysteresis": self.hysteresis,
+                "backbone": self.backbone,
                 "stiffness_scale": self.scale.tolist(), "stiffening_at_25mm": self.stiffening.tolist(),
                 "x_s_m": self.x_s.tolist(), "damping_beta": self.beta.tolist(), "damping_a_sat_m": self.a_sat.tolist(),
                 "damping_alpha": self.alpha.tolist(), "envelope_s": self.t_env.tolist(),
@@ -191,10 +201,30 @@ def backbone_force(variant: "CableVariant", x: np.ndarray) -> np.ndarray:
                            variant.scale * variant.k, variant.c, variant.x_s)
 
 
+HYSTERESIS = ("envelope", "boucwen")   # the truth law's hysteresis, by its index in the compiled law
+BW_BETA = 0.75       # Bouc-Wen shape: beta + gamma = 1 (z saturates at z_y on loading), beta > gamma (the
+BW_N = 2.0           # unloading branch is steeper than the elastic one); n the sharpness of the yield
+
+
 @numba.njit(cache=True)
-def _step(xv, dx, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk, jr, km, a, b, hi, lo, ve, z, y, zout):
-    """One tick of one cable's law (pragma: compiled). Returns (F, hi, lo, ve, y); the new
-    Jenkins states go to ``zout``. See the module docstring for the law."""
+def _bouc_wen(zb, dx, zy):
+    """The Bouc-Wen state z [m] after an elongation step dx [m]: dz = dx (1 - |z/z_y|^n
+    (beta sgn(dx z) + gamma)), beta + gamma = 1 (rate-independent: it depends on the path,
+    not on the speed), integrated in substeps of at most z_y / 20 (pragma: compiled)."""
+    nsub = int(abs(dx) / (0.05 * zy)) + 1
+    d = dx / nsub
+    for _k in range(nsub):
+        u = abs(zb / zy) ** BW_N
+        sg = 1.0 if d * zb > 0 else -1.0
+        zb += d * (1.0 - u * (BW_BETA * sg + (1.0 - BW_BETA)))
+    return zb
+
+
+@numba.njit(cache=True)
+def _step(xv, dx, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk, jr, km, a, b, hi, lo, ve, z, y, zout, law, zb):
+    """One tick of one cable's law (pragma: compiled). Returns (F, hi, lo, ve, y, zb); the
+    new Jenkins states go to ``zout``. ``law`` 0: the envelope damping; 1: a Bouc-Wen
+    hysteresis in its place (state ``zb`` [m]). See the module docstring for the law."""
     fb = _backbone(xv, kind, sk, c, xs)
     # running envelope: the peak-to-peak of x, its gap shrinking with time constant t_env,
     # and the peak speed, decaying alike
@@ -204,12 +234,16 @@ def _step(xv, dx, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk, jr, km, a,
     v = dx / dt
     ve = max(abs(v), ve * (1.0 - shrink), 1e-6)
     ae = max(0.5 * (hi - lo), 1e-6)
-    h = beta * sk * asat * math.tanh(ae / asat)
-    av = abs(v)
-    if av >= V0:
-        fd = h * (av / ve) ** alpha * (1.0 if v > 0 else -1.0)
+    if law == 1:
+        zb = _bouc_wen(zb, dx, asat)
+        fd = beta * sk * zb
     else:
-        fd = h * (V0 / ve) ** alpha * v / V0
+        h = beta * sk * asat * math.tanh(ae / asat)
+        av = abs(v)
+        if av >= V0:
+            fd = h * (av / ve) ** alpha * (1.0 if v > 0 else -1.0)
+        else:
+            fd = h * (V0 / ve) ** alpha * v / V0
     s = 0.0
     for j in range(jk.size):
         zz = z[j] + dx
@@ -221,11 +255,11 @@ def _step(xv, dx, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk, jr, km, a,
         zout[j] = zz
         s += jk[j] * zz
     y = a * y + b * dx
-    return fb + fd + s + km * y, hi, lo, ve, y
+    return fb + fd + s + km * y, hi, lo, ve, y, zb
 
 
 @numba.njit(cache=True)
-def _law(x, dt, kind, sk, c, xs, beta, asat, alpha, t_env, jk, jr, km, tau):   # pragma: no cover - compiled
+def _law(x, dt, kind, sk, c, xs, beta, asat, alpha, t_env, jk, jr, km, tau, law):   # pragma: no cover - compiled
     N, m = x.shape
     out = np.empty((N, m))
     for i in range(m):
@@ -234,20 +268,21 @@ def _law(x, dt, kind, sk, c, xs, beta, asat, alpha, t_env, jk, jr, km, tau):   #
         shrink = dt / t_env[i]
         z = np.zeros(jk.shape[1])
         y = 0.0
+        zb = 0.0
         hi = x[0, i]
         lo = x[0, i]
         ve = 1e-6
         for n in range(N):
             dx = 0.0 if n == 0 else x[n, i] - x[n - 1, i]
-            f, hi, lo, ve, y = _step(x[n, i], dx, dt, kind, sk[i], c[i], xs[i], beta[i], asat[i], alpha[i], shrink,
-                                     jk[i], jr[i], km[i], a, b, hi, lo, ve, z, y, z)
+            f, hi, lo, ve, y, zb = _step(x[n, i], dx, dt, kind, sk[i], c[i], xs[i], beta[i], asat[i], alpha[i],
+                                         shrink, jk[i], jr[i], km[i], a, b, hi, lo, ve, z, y, z, law, zb)
             out[n, i] = f
     return out
 
 
 @numba.njit(cache=True)
 def _eval(n, q, x0, AT, w, e, cv, rows, xprev, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk, jr, km, aa,
-          bb, hi, lo, ve, z, y, zt, x, f, D, need_d):                      # pragma: no cover - compiled
+          bb, hi, lo, ve, z, y, zt, x, f, D, need_d, law, zb):                      # pragma: no cover - compiled
     """Residual A^T (F + e) + w on ``rows`` at tick n for pose correction q; the law's
     forces go to f and (``need_d``) their tangent dF/dx to D (central differences)."""
     m = x.size
@@ -260,14 +295,14 @@ def _eval(n, q, x0, AT, w, e, cv, rows, xprev, dt, kind, sk, c, xs, beta, asat, 
     for i in range(m):
         dx = 0.0 if n == 0 else x[i] - xprev[i]
         f[i] = _step(x[i], dx, dt, kind, sk[i], c[i], xs[i], beta[i], asat[i], alpha[i], shrink[i], jk[i], jr[i],
-                     km[i], aa[i], bb[i], hi[i], lo[i], ve[i], z[i], y[i], zt)[0] + e[n, i] + cv[i] * dx / dt
+                     km[i], aa[i], bb[i], hi[i], lo[i], ve[i], z[i], y[i], zt, law, zb[i])[0] + e[n, i] + cv[i] * dx / dt
         if not need_d:
             continue
         h = 1e-9
         fp = _step(x[i] + h, dx + hd, dt, kind, sk[i], c[i], xs[i], beta[i], asat[i], alpha[i], shrink[i], jk[i],
-                   jr[i], km[i], aa[i], bb[i], hi[i], lo[i], ve[i], z[i], y[i], zt)[0]
+                   jr[i], km[i], aa[i], bb[i], hi[i], lo[i], ve[i], z[i], y[i], zt, law, zb[i])[0]
         fm = _step(x[i] - h, dx - hd, dt, kind, sk[i], c[i], xs[i], beta[i], asat[i], alpha[i], shrink[i], jk[i],
-                   jr[i], km[i], aa[i], bb[i], hi[i], lo[i], ve[i], z[i], y[i], zt)[0]
+                   jr[i], km[i], aa[i], bb[i], hi[i], lo[i], ve[i], z[i], y[i], zt, law, zb[i])[0]
         D[i] = max((fp - fm) / (2.0 * h), 1e-3 * sk[i]) + (cv[i] / dt if n > 0 else 0.0)
     nr = rows.size
     R = np.zeros(nr)
@@ -280,7 +315,7 @@ def _eval(n, q, x0, AT, w, e, cv, rows, xprev, dt, kind, sk, c, xs, beta, asat, 
 
 
 @numba.njit(cache=True)
-def _balanced(x0, AT, w, e, cv, rowmask, dt, kind, sk, c, xs, beta, asat, alpha, t_env, jk, jr, km, tau,
+def _balanced(x0, AT, w, e, cv, rowmask, dt, kind, sk, c, xs, beta, asat, alpha, t_env, jk, jr, km, tau, law,
               tol, max_iter):                                              # pragma: no cover - compiled
     """Tick by tick, the pose correction dq (6,) with A^T (F(x0 - A dq) + cv dx/dt + e) + w = 0
     on the rows in ``rowmask`` (cv (m,) [N s/m]: viscous force, solved implicitly) (Newton with backtracking, the law's tangent by central
@@ -301,6 +336,7 @@ def _balanced(x0, AT, w, e, cv, rowmask, dt, kind, sk, c, xs, beta, asat, alpha,
     z = np.zeros((m, J))
     zt = np.zeros(J)
     y = np.zeros(m)
+    zb = np.zeros(m)
     hi = x0[0].copy()
     lo = x0[0].copy()
     ve = np.full(m, 1e-6)
@@ -315,7 +351,7 @@ def _balanced(x0, AT, w, e, cv, rowmask, dt, kind, sk, c, xs, beta, asat, alpha,
     worst = 0.0
     for n in range(N):
         R = _eval(n, q, x0, AT, w, e, cv, rows, xprev, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk, jr, km, aa,
-                  bb, hi, lo, ve, z, y, zt, x, f, D, True)
+                  bb, hi, lo, ve, z, y, zt, x, f, D, True, law, zb)
         nR = np.max(np.abs(R))
         for it in range(max_iter):
             if nR <= tol:
@@ -335,14 +371,14 @@ def _balanced(x0, AT, w, e, cv, rowmask, dt, kind, sk, c, xs, beta, asat, alpha,
                 for r in range(nr):
                     qt[rows[r]] += t * d[r]
                 Rt = _eval(n, qt, x0, AT, w, e, cv, rows, xprev, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk,
-                           jr, km, aa, bb, hi, lo, ve, z, y, zt, x, f, D, False)
+                           jr, km, aa, bb, hi, lo, ve, z, y, zt, x, f, D, False, law, zb)
                 nRt = np.max(np.abs(Rt))
                 if nRt < nR or t < 1e-4:
                     break
                 t *= 0.5
             if nRt > tol:                       # the tangent at the accepted point, for the next step
                 _eval(n, qt, x0, AT, w, e, cv, rows, xprev, dt, kind, sk, c, xs, beta, asat, alpha, shrink, jk, jr, km,
-                      aa, bb, hi, lo, ve, z, y, zt, x, f, D, True)
+                      aa, bb, hi, lo, ve, z, y, zt, x, f, D, True, law, zb)
             for j in range(6):
                 q[j] = qt[j]
             R = Rt
@@ -355,9 +391,9 @@ def _balanced(x0, AT, w, e, cv, rowmask, dt, kind, sk, c, xs, beta, asat, alpha,
                 s += AT[n, j, i] * q[j]
             x[i] = x0[n, i] - s
             dx = 0.0 if n == 0 else x[i] - xprev[i]
-            fi, hi[i], lo[i], ve[i], y[i] = _step(x[i], dx, dt, kind, sk[i], c[i], xs[i], beta[i], asat[i], alpha[i],
-                                                  shrink[i], jk[i], jr[i], km[i], aa[i], bb[i], hi[i], lo[i], ve[i],
-                                                  z[i], y[i], zt)
+            fi, hi[i], lo[i], ve[i], y[i], zb[i] = _step(x[i], dx, dt, kind, sk[i], c[i], xs[i], beta[i], asat[i],
+                                                         alpha[i], shrink[i], jk[i], jr[i], km[i], aa[i], bb[i], hi[i],
+                                                         lo[i], ve[i], z[i], y[i], zt, law, zb[i])
             for j in range(J):
                 z[i, j] = zt[j]
             F[n, i] = fi
@@ -370,7 +406,7 @@ def _balanced(x0, AT, w, e, cv, rowmask, dt, kind, sk, c, xs, beta, asat, alpha,
 
 def _law_args(v: "CableVariant") -> tuple:
     return (0 if v.backbone == "exp" else 1, v.scale * v.k, v.c, v.x_s, v.beta, v.a_sat, v.alpha, v.t_env,
-            np.ascontiguousarray(v.jk), np.ascontiguousarray(v.jr), v.km, v.tau)
+            np.ascontiguousarray(v.jk), np.ascontiguousarray(v.jr), v.km, v.tau, HYSTERESIS.index(v.hysteresis))
 
 
 def cable_law(variant: CableVariant, x: np.ndarray, dt: float) -> np.ndarray:
