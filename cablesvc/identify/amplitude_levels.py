@@ -310,7 +310,11 @@ def fit_levels(t: np.ndarray, x: np.ndarray, force: np.ndarray, levels: list[Lev
 
         # 2) least-squares refinement of all six (002 eqs 12-14), analytic Jacobian
         kw = {} if max_nfev is None else {"max_nfev": max_nfev}
-        res = refine(residuals, th0, None, method="lm", jac=jac, statistics=False, **kw)
+        # LM is unbounded: a step may take alpha far out of range (to inf on a loop the law
+        # fits poorly), which overflows the regressor; such a result is refitted bounded
+        # below, so its floating-point warnings are not the user's concern
+        with np.errstate(over="ignore", invalid="ignore"):
+            res = refine(residuals, th0, None, method="lm", jac=jac, statistics=False, **kw)
         th = np.asarray(res.x, float).copy()
         if not (0.0 <= th[5] <= ALPHA_MAX):                # LM is unbounded: keep alpha in range
             res = refine(residuals, th0, ([-np.inf] * 4 + [0.0, 0.0], [np.inf] * 5 + [ALPHA_MAX]), method="trf",
