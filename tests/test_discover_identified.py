@@ -575,3 +575,48 @@ def test_held_out_hold_of_the_recalibration_does_not_depend_on_the_term_beside_i
             assert np.allclose(ch1, ch2, rtol=1e-6, atol=1e-9 * (1.0 + np.abs(ch1).max())), (c, i)
             moved += bool(np.any(ch1 != 0.0))
     assert moved > 0           # some block is held at all: the comparison is not empty
+
+
+def _bouc_wen_loop(x, z_y=2e-3):
+    """A rate-independent Bouc-Wen loop (n = 2, beta 0.75, gamma 0.25; the realistic bench's
+    ``--truth-hysteresis boucwen`` law) driven by the elongation x [m]: z / z_y in [-1, 1]."""
+    from cablesvc.bench.truth import _bouc_wen
+    z = np.zeros(x.size)
+    for n in range(1, x.size):
+        z[n] = _bouc_wen(z[n - 1], x[n] - x[n - 1], z_y)
+    return z / z_y
+
+
+def test_recalibration_takes_a_rate_independent_loop_only_where_most_cables_show_one():
+    # a Bouc-Wen loop (not the stops' own form) at 5 x the noise on every cable: the gate
+    # takes the recalibration's stops, which then leave far less of it held out. The same
+    # loop on two cables only (a concealed effect's reach) or on none leaves them out
+    from cablesvc.discover.evidence import block_ids, loo_errors
+    from cablesvc.discover.nuisance import describe_recalibration, loop_gate
+    from cablesvc.discover.select import fit_terms
+    from cablesvc.models.terms import Recalibration
+    from cablesvc.models.terms.recalibration import STOPS
+
+    s, train, valid = _screen_signals()
+    blocks = block_ids(s.t, 1.25, train | valid)
+    noise = np.full(s.m, 0.1)
+    rng = np.random.default_rng(21)
+    loop = np.column_stack([0.5 * _unit(_bouc_wen_loop(s.x[:, c])) for c in range(s.m)])
+    r = 0.1 * rng.standard_normal(s.y.shape) + loop
+    g = loop_gate(s, r, noise, blocks)
+    assert g["used"] and 2 * len(g["cables"]) > s.m, g
+
+    def excess(term, c):
+        return np.mean([np.mean(e ** 2) for e in loo_errors(s, c, r[:, c], [term], [{}], blocks)]) / 0.01 - 1.0
+
+    for c in (0, 5):
+        assert excess(Recalibration(stops=True), c) < 0.5 * excess(Recalibration(stops=False), c)
+    fit = fit_terms(s, 0, r[:, 0], [Recalibration(stops=True)], train, hypers=[{}]).params["baseline"]
+    assert any(fit[n] != 0.0 for n in STOPS) and "rate-independent loop" in describe_recalibration(fit)
+    off = fit_terms(s, 0, r[:, 0], [Recalibration(stops=False)], train, hypers=[{}]).params["baseline"]
+    assert all(off[n] == 0.0 for n in STOPS)          # held at 0, written so to the file
+    some = 0.1 * rng.standard_normal(s.y.shape)
+    some[:, [2, 6]] += loop[:, [2, 6]]
+    g2 = loop_gate(s, some, noise, blocks)
+    assert not g2["used"] and {2, 6} <= set(g2["cables"]), g2     # seen there, not taken robot-wide
+    assert not loop_gate(s, 0.1 * rng.standard_normal(s.y.shape), noise, blocks)["used"]

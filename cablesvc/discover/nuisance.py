@@ -11,6 +11,7 @@ baseline family's own parameters plus a smooth discrepancy in its own variables:
 
     delta_f = o + k_s f0 + a_h h + c2 xi^2 / s + c3 xi^3 / s^2 + K1_A (A - mean A) xi + d_A A tanh(v / v_s)
               + sum_a (c_ra + c_ra_e E) sgn(v) (|v| / v_ref)^a,   a = 0, 0.25
+              [+ sum_r c_sr s_r(x),   r = 0.3, 1, 3 mm: where most cables show a rate-independent loop]
 
 with f0 the baseline force [N], xi = x - mean x the elongation about its training mean
 [m] and s its training std [m], h = f0 - P3(x) the baseline's hysteretic part (f0 minus its
@@ -27,7 +28,11 @@ damping is the loop area of millimetre sines at one working point; along a traje
 amplitude normalisation is the least reliable part of the law (issue 15 lists "another
 amplitude estimator" among the model-form errors). The exponents stay well below a viscous
 force's 1, so that a Kelvin-Voigt damper keeps a part of its own. Only inputs enter these columns (never the
-measured force).
+measured force). The bracketed columns are Prandtl-Ishlinskii stops (elastic-perfectly-plastic
+elements of widths r driven by x, :mod:`cablesvc.models.play`), a rate-independent loop that
+002 eq 8 cannot draw (a rope's strand slip); :func:`loop_gate` adds them on every cable of a
+robot where most of its cables gain from them on held-out blocks (the model form is
+the cable type's, on every cable; a concealed effect is on some).
 
 The terms that only reshape the baseline's own hysteresis (``amplitude``, ``asymmetric``,
 ``boucwen``: :attr:`Term.model_form`) and the sensor's offset and gain (which a force
@@ -43,10 +48,39 @@ from __future__ import annotations
 
 from typing import Any
 
-from cablesvc.models.terms import Recalibration, hysteretic_part
-from cablesvc.models.terms.recalibration import DAMPING_LEVELS, DAMPING_PER_MM
+import numpy as np
 
-__all__ = ["Recalibration", "hysteretic_part", "describe_recalibration"]
+from cablesvc.models.terms import Recalibration, hysteretic_part
+from cablesvc.models.terms.recalibration import DAMPING_LEVELS, DAMPING_PER_MM, STOP_WIDTHS, STOPS
+
+__all__ = ["Recalibration", "hysteretic_part", "describe_recalibration", "loop_gate"]
+
+
+def loop_gate(s: Any, r: np.ndarray, noise: np.ndarray, blocks: list, alpha: float = 0.05) -> dict[str, Any]:
+    """Whether this robot's recalibration takes the rate-independent loop (the stops of
+    :class:`Recalibration`): on each cable, the recalibration without the stops against the
+    one with them, leave-one-block-out on ``blocks`` (the screen's units), one-sided
+    Wilcoxon signed-rank test of the per-block gains; the loop is used on every cable when it
+    helps at level ``alpha`` on most of them (more than half). The baseline's model form is the
+    cable type's and lies on every cable; a concealed effect lies on some, so it cannot
+    bring a loop into the nuisance by itself, and a robot whose cables show no loop
+    (the development bench's truth law) keeps the recalibration without it. Returns
+    {"used", "cables" (those where it helped), "p" and "gain" per cable [noise variances],
+    "alpha", "widths_mm"}."""
+    from cablesvc.discover.evidence import block_gain_test, loo_errors
+    from cablesvc.discover.select import DesignCache
+    with_loop, without = Recalibration(stops=True), Recalibration(stops=False)
+    ca, cb = DesignCache(), DesignCache()
+    p, gain = [], []
+    for c in range(s.m):
+        e1 = loo_errors(s, c, r[:, c], [with_loop], [{}], blocks, ca)
+        e0 = loo_errors(s, c, r[:, c], [without], [{}], blocks, cb)
+        t = block_gain_test(e0, e1, float(noise[c]))
+        p.append(float(t["p"]))
+        gain.append(float(t["gain"]))
+    helped = [c for c in range(s.m) if p[c] < alpha]
+    return {"used": 2 * len(helped) > s.m, "cables": helped, "p": p, "gain": gain, "alpha": float(alpha),
+            "widths_mm": [1e3 * w for w in STOP_WIDTHS]}
 
 
 def describe_recalibration(params: dict[str, Any]) -> str:
@@ -58,4 +92,7 @@ def describe_recalibration(params: dict[str, Any]) -> str:
     per_mm = sum(params.get(n, 0.0) for n in DAMPING_PER_MM)
     if level or per_mm:
         parts.append(f"damping at 1 mm/s {level:+.2f} N and {per_mm:+.2f} N per mm of envelope")
+    loop = [params.get(n, 0.0) for n in STOPS]
+    if any(loop):
+        parts.append("rate-independent loop " + ", ".join(f"{v:+.2f} N at {1e3 * w:g} mm" for v, w in zip(loop, STOP_WIDTHS)))
     return ", ".join(parts)

@@ -270,6 +270,7 @@ class Discovery:
 
     def summary(self) -> list[str]:
         lines = [self.verdict()] if self.options.get("mode") == "identified" else []
+        m_all = self.residual.shape[1]
         st = self.options.get("stream")
         if st:
             lines.append(describe_reduction(st) + "; fits and held-out scores are on those ticks")
@@ -288,6 +289,13 @@ class Discovery:
         for f in self.findings:
             lines.append(f.sentence())
         rc = self.recalibration
+        lp = rc.get("loop") or {}
+        if lp.get("used"):
+            lines.append(f"the cables show a rate-independent loop that the baseline's law lacks (on "
+                         f"{len(lp['cables'])} of {m_all} cables the recalibration gains from Prandtl-Ishlinskii "
+                         f"stops of {', '.join(f'{w:g}' for w in lp['widths_mm'])} mm, block-level p < {lp['alpha']:g}): "
+                         "it is part of the recalibration on every cable, the baseline's model form, not a "
+                         "concealed effect")
         for c in rc.get("cables", []):
             d = rc["per_cable"][str(c)]
             lines.append(f"the baseline is off by {d['rms_N']:.2g} N RMS on cable {c} (block-level p = {d['p']:.2g}); "
@@ -676,15 +684,17 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                          t_origin) -> Discovery:
     from cablesvc.discover.detectability import describe_limits, detection_limits
     from cablesvc.discover.equilibrium import equilibrium_check
-    from cablesvc.discover.evidence import block_gain_test, excess_test, holm, loo_errors
+    from cablesvc.discover.evidence import block_gain_test, block_ids, excess_test, holm, loo_errors
     from cablesvc.discover.locate import state_regions
-    from cablesvc.discover.nuisance import Recalibration, describe_recalibration
+    from cablesvc.discover.nuisance import Recalibration, describe_recalibration, loop_gate
     from cablesvc.discover.periodic import travel_probe
     from cablesvc.discover.select import DesignCache
     from cablesvc.models.terms import LIBRARY
 
     m = s.m
-    nuis = Recalibration()
+    # the recalibration takes a rate-independent loop where most cables show one
+    loop = loop_gate(s, r, noise, block_ids(s.t, block / 2.0, train | valid), ALPHA)
+    nuis = Recalibration(stops=loop["used"])
     cands = [t for t in terms if not t.model_form]
     # the selector of this mode is the block screen (:mod:`cablesvc.discover.screen`); a
     # BlockScreen passed in is used with its own options, any other selector is for the
@@ -787,6 +797,7 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     else:
         typical_words = ""
     recal = {"cables": rc_cables, "per_cable": per_cable, "typical": typical_words, "ambiguous": ambiguous,
+             "loop": loop,
              "model_form_terms": [t.name for t in terms if t.model_form],
              "note": ("amplitude, asymmetric and Bouc-Wen reshaping and the force offset/gain are part of the "
                       "baseline's recalibration, not concealed effects")}

@@ -12,6 +12,7 @@ import numpy as np
 from cablesvc.models.terms.base import LiveTerm, Term
 from cablesvc.models.terms.material import (AmplitudeStiffness, AsymmetricHardening, amplitude_varies,
                                             elongation_centre_scale)
+from cablesvc.models.play import stop_columns, stop_step
 from cablesvc.models.terms.signals import Signals, cable_view
 
 __all__ = ["Recalibration", "hysteretic_part"]
@@ -60,6 +61,12 @@ DAMPING_LEVELS = tuple(f"c_r{int(100 * a)}" for a in RATE_EXPONENTS)
 #: ... then the same with a level that grows with the elongation's envelope [N/mm]
 DAMPING_PER_MM = tuple(f"{n}_e" for n in DAMPING_LEVELS)
 _RATE = DAMPING_LEVELS + DAMPING_PER_MM
+#: m: the widths of the rate-independent loop's stops (:mod:`cablesvc.models.play`), a
+#: decade of yield elongations about a rope's strand slip (0.1-few mm), log-spaced
+STOP_WIDTHS = (3e-4, 1e-3, 3e-3)
+#: ... and their parameters, the force of each stop at full yield [N] (``c_s03``: 0.3 mm)
+STOPS = tuple(f"c_s{round(w * 1e4):02d}" for w in STOP_WIDTHS)
+_N_BASE = 7 + 2 * len(RATE_EXPONENTS)               # the columns before the stops
 
 
 def rate_power(v: np.ndarray, alpha: Any, out: np.ndarray) -> np.ndarray:
@@ -101,6 +108,7 @@ class Recalibration(Term):
 
         delta_f = o + k_s f0 + a_h h + c2 xi^2 / s + c3 xi^3 / s^2 + K1_A (A - mean A) xi + d_A A tanh(v / v_s)
                   + sum_a (c_ra + c_ra_e E) sgn(v) (|v| / v_ref)^a,   a in RATE_EXPONENTS = (0, 0.25)
+                  [+ sum_r c_sr s_r(x),   r in STOP_WIDTHS = (0.3, 1, 3) mm]
 
     f0 the baseline force [N], xi = x - mean x [m], s its training std [m], h = f0 - P3(x)
     the baseline's hysteretic part (f0 minus its least-squares cubic backbone in x on the
@@ -114,7 +122,18 @@ class Recalibration(Term):
     level fitted on 2 mm of envelope does not grow without limit when the robot later
     covers 20 mm). The exponents span dry friction (a = 0) to a weak rate dependence;
     together they stand for an exponent up to about 0.5 over a trajectory's speeds, and
-    stay well below a viscous force's 1, which keeps a part of its own. An identified baseline's damping is the loop
+    stay well below a viscous force's 1, which keeps a part of its own.
+    The last, optional, columns are a rate-independent loop: Prandtl-Ishlinskii stops s_r of
+    widths r (:mod:`cablesvc.models.play`; s_r in [-1, 1], c_sr [N] the force of each at full
+    yield). A rope whose strands slip (a Bouc-Wen-like loop, which the realistic bench's
+    ``--truth-hysteresis boucwen`` draws) is a loop 002 eq 8's damping cannot draw: its force
+    turns over a yield elongation after each reversal, whatever the speed. The stops are used
+    only where discovery finds that most of the robot's cables show such a loop
+    (:func:`cablesvc.discover.nuisance.loop_gate`, then ``Recalibration(stops=True)``; by
+    default they are held at 0): on a robot without one they would take part of a creep, a sag or a viscous force
+    (measured: docs/discovery.md, "A rate-independent loop"). The live form always runs them,
+    with the coefficients the file gives (0 where unused, or in a file written before them).
+    An identified baseline's damping is the loop
     area of millimetre sines at one working point; along a trajectory its amplitude
     normalisation is the least reliable part of its law (issue 15 lists "another amplitude
     estimator" among the model-form errors of a real cable).
@@ -137,15 +156,21 @@ class Recalibration(Term):
     name = "baseline"
     label = "baseline recalibration (its own parameters and a smooth discrepancy in its own state)"
     equation = ("o + k_s f0 + a_h h + c2 xi^2/s + c3 xi^3/s^2 + K1_A (A - mean A) xi + d_A A tanh(v/v_s)"
-                " + sum_a (c_ra + c_ra_e E) sgn(v) |v/v_ref|^a  (002 eq 8, 001 Ch 4; Kennedy & O'Hagan 2001)")
+                " + sum_a (c_ra + c_ra_e E) sgn(v) |v/v_ref|^a [+ sum_r c_sr s_r(x)]  (002 eq 8, 001 Ch 4; "
+                "Prandtl-Ishlinskii stops; Kennedy & O'Hagan 2001)")
     variable = "baseline force f0 [N]"
-    params = ("o", "k_s", "a_h", "c2", "c3", "K1_A", "d_A", *_RATE)
+    params = ("o", "k_s", "a_h", "c2", "c3", "K1_A", "d_A", *_RATE, *STOPS)
     units = ("N", "-", "-", "N", "N", "N/m^2", "N/m", *("N" for _ in RATE_EXPONENTS),
-             *("N/mm" for _ in RATE_EXPONENTS))
+             *("N/mm" for _ in RATE_EXPONENTS), *("N" for _ in STOPS))
     ref_names = ("x_mean", "x_scale", "h0", "h1", "h2", "h3", "A_mean", "E_hi",
                  *(f"{side}_{n}" for n in _HELD for side in ("lo", "hi")))
     owns_nuisance = True
     held = _HELD
+
+    def __init__(self, stops: bool = False):
+        #: whether the fit uses the stops (False, the default: their columns are dropped,
+        #: held at 0); the live form always runs them, with the coefficients the file gives
+        self.stops = bool(stops)
 
     def refs(self, s, c, h):
         R = {**_backbone_refs(s, c), "A_mean": s.train_mean(s.amplitude[:, c]),
@@ -158,12 +183,16 @@ class Recalibration(Term):
 
     def columns(self, g, R, h, out):
         self.law(g, R, h, envelope(g.x), out)
+        stop_columns(g.x, np.asarray(STOP_WIDTHS), out[_N_BASE:])
 
     @staticmethod
     def law(g, R, h, env, out):
-        """The columns (p, ...) into ``out`` from the signals ``g`` and the elongation's
-        envelope ``env`` [mm] (:func:`envelope` offline, :class:`_RecalibrationLive` live),
-        which is clamped at ``E_hi`` in place: callers pass an array of their own."""
+        """The columns before the stops (the first ``_N_BASE`` of ``out``) from the signals
+        ``g`` and the elongation's envelope ``env`` [mm] (:func:`envelope` offline,
+        :class:`_RecalibrationLive` live), which is clamped at ``E_hi`` in place: callers pass
+        an array of their own. The stops, which carry a state, are written by the caller
+        (:func:`~cablesvc.models.play.stop_columns` offline, :func:`~cablesvc.models.play.stop_step`
+        live)."""
         o, ks, ah, c2 = out[:4]
         o.fill(1.0)
         np.copyto(ks, g.f0)
@@ -176,7 +205,7 @@ class Recalibration(Term):
             np.minimum(col, R[f"hi_{n}"], out=col)
         np.minimum(env, R["E_hi"], out=env)              # the level grows no further than fitted
         k = len(RATE_EXPONENTS)
-        for a, col, col_e in zip(RATE_EXPONENTS, out[7:7 + k], out[7 + k:]):
+        for a, col, col_e in zip(RATE_EXPONENTS, out[7:7 + k], out[7 + k:_N_BASE]):
             rate_power(g.v, a, col)                      # 002 eq 8's damping rate law, its level free
             np.multiply(col, env, out=col_e)             # ... and its level growing with the envelope
 
@@ -192,6 +221,8 @@ class Recalibration(Term):
 
     def design(self, s, c, h):
         d = super().design(s, c, h)
+        if not self.stops:
+            d = d.without(STOPS)
         return d if d.refs.get("has_A", 1.0) else d.without(_HELD)
 
     def evidence(self, s, c, h):
@@ -213,6 +244,11 @@ class _RecalibrationLive(LiveTerm):
         self.lo = np.zeros((lanes, m))
         self.env = np.zeros((lanes, m))
         self.started = np.zeros(1, bool)
+        k = len(STOP_WIDTHS)
+        self.widths = np.asarray(STOP_WIDTHS, float).reshape(k, 1, 1)
+        self.play = np.zeros((k, lanes, m))               # the stops' play states [m]
+        self.play_started = np.zeros((lanes, m), bool)
+        self._lo, self._hi = np.zeros((k, lanes, m)), np.zeros((k, lanes, m))
 
     def write(self, g):
         if not self.started[0]:
@@ -224,9 +260,11 @@ class _RecalibrationLive(LiveTerm):
         np.subtract(self.hi, self.lo, out=self.env)
         np.multiply(self.env, 0.5e3, out=self.env)
         self.term.law(g, self.R, self.H, self.env, self.cols)
+        stop_step(self.play, g.x, self.widths, self.cols[_N_BASE:], self.play_started, self._lo, self._hi)
 
     def state_dict(self):
-        return {"hi": self.hi.copy(), "lo": self.lo.copy(), "started": self.started.copy()}
+        return {"hi": self.hi.copy(), "lo": self.lo.copy(), "started": self.started.copy(),
+                "play": self.play.copy(), "play_started": self.play_started.copy()}
 
     def load_state_dict(self, d):
         if "hi" not in d or np.shape(d["hi"]) != self.hi.shape:     # a state saved without it
@@ -234,6 +272,9 @@ class _RecalibrationLive(LiveTerm):
         np.copyto(self.hi, d["hi"])
         np.copyto(self.lo, d["lo"])
         np.copyto(self.started, d["started"])
+        if "play" in d and np.shape(d["play"]) == self.play.shape:  # a state saved before the stops: relaxed
+            np.copyto(self.play, d["play"])
+            np.copyto(self.play_started, d["play_started"])
 
 
 _ASYMMETRIC = AsymmetricHardening()
