@@ -47,7 +47,9 @@ against the least value on its cables; whether it was named), and over the singl
 ``single_at_limit_total`` / ``single_at_limit_correct`` (at or above the limit),
 ``single_below_limit`` / ``single_below_limit_correct`` and ``single_below_floor`` /
 ``single_below_floor_correct``: what the method misses against what the recording could
-not show.
+not show. ``loop_used`` counts the cases whose recalibration took a rate-independent loop
+(:func:`cablesvc.discover.nuisance.loop_gate`; per case in ``per_case``), and
+``truth_hysteresis`` names the truth law's loop (``--truth-hysteresis``).
 """
 
 from __future__ import annotations
@@ -283,6 +285,7 @@ def _realistic_row(spec: Any, seed: int) -> dict[str, Any]:
             "test_rmse_after_over_noise": after,
             "baseline_rmse_over_noise": (rb / RN).tolist() if rb.size else None,
             "effect_vs_limit": vs_limit,
+            "loop_used": bool(((getattr(d, "recalibration", None) or {}).get("loop") or {}).get("used", False)),
             "wrench_rms": case.wrench, "seconds": {"simulate": case.seconds["simulate"], "discover": td},
             "robot_seconds": dict(sr.seconds)}
 
@@ -373,6 +376,7 @@ def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Opti
         "ool_unexplained_on_cables": sum(c["unexplained_on_truth_cables"] for c in ool),
         "ool_no_wrong_term": sum(c["no_wrong_term"] for c in ool),
         "control_unexplained": sum(bool(c["unexplained"]) for c in ctrl),
+        "loop_used": sum(bool(c.get("loop_used")) for c in per_case),
         "single_below_floor": len(under_floor),
         "single_below_floor_correct": sum(c["correct"] for c in under_floor),
         "single_below_limit": len(below),
@@ -467,6 +471,7 @@ def _main_realistic(args) -> int:
           f"{res['ool_unexplained_on_cables']}; nothing named off the effect's cables, at most one term: "
           f"{res['ool_no_wrong_term']})")
     print(f"controls with an unexplained residual reported: {pct(res['control_unexplained'], res['control_total'])}")
+    print(f"recalibration took a rate-independent loop (most cables showed one): {pct(res['loop_used'], res['cases'])}")
     print(f"single effects against their recording's detection limit (this baseline's model form), at or above "
           f"it on a cable: named {pct(res['single_at_limit_correct'], res['single_at_limit_total'])}; below it on "
           f"every cable: named {pct(res['single_below_limit_correct'], res['single_below_limit'])}; below the "
