@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cablesvc.models.play import stop_columns, stop_step
+from cablesvc.models.play import LiveStops, stop_columns
 
 
 def test_stop_is_elastic_then_slides_and_remembers_its_reversal():
@@ -33,13 +33,11 @@ def test_live_step_equals_the_offline_record_with_gaps():
     x[50:53, 0, 1] = np.nan                 # a gap mid-record
     widths = np.array([3e-4, 1e-3, 3e-3])
     k = widths.size
-    p = np.zeros((k, lanes, m))
-    started = np.zeros((lanes, m), bool)
-    lo, hi = np.zeros_like(p), np.zeros_like(p)
+    stops = LiveStops(widths, lanes, m)
     out = np.zeros((k, lanes, m))
     live = np.empty((N, k, lanes, m))
     for n in range(N):
-        stop_step(p, x[n], widths.reshape(k, 1, 1), out, started, lo, hi)
+        stops.step(x[n], out)
         live[n] = out
     for ln in range(lanes):
         for c in range(m):

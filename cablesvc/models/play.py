@@ -21,7 +21,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["stop_columns", "stop_step"]
+__all__ = ["LiveStops", "stop_columns"]
 
 
 @numba.njit(cache=True)
@@ -49,20 +49,34 @@ def stop_columns(x: np.ndarray, widths: np.ndarray, out: np.ndarray) -> np.ndarr
     return out
 
 
-def stop_step(p: np.ndarray, x: np.ndarray, widths: np.ndarray, out: np.ndarray, started: np.ndarray,
-              lo: np.ndarray, hi: np.ndarray) -> None:
-    """One live tick of the stops: ``p`` (k, lanes, m) [m] the play states (updated in place),
-    ``x`` (lanes, m) [m] this tick's elongation, ``widths`` (k, 1, 1) [m]; ``out`` (k, lanes,
-    m) [-] gets s_r; ``lo``, ``hi`` (k, lanes, m) scratch. ``started`` (lanes, m) bool marks
-    the states that have seen a finite elongation (updated in place): a state starts
-    relaxed at its first finite x, as offline. Fixed numpy calls, no allocation."""
-    ok = np.isfinite(x)
-    np.copyto(p, x, where=ok & ~started)              # (k, lanes, m) <- (lanes, m)
-    np.logical_or(started, ok, out=started)
-    np.subtract(x, widths, out=lo)
-    np.maximum(lo, p, out=lo)
-    np.add(x, widths, out=hi)
-    np.minimum(hi, lo, out=hi)                        # min(x + r, max(x - r, p))
-    np.copyto(p, hi, where=ok)                        # a non-finite x leaves the state
-    np.subtract(x, p, out=out)
-    np.divide(out, widths, out=out)
+class LiveStops:
+    """The stops live, tick by tick: play states ``p`` (k, lanes, m) [m] for the widths
+    ``widths`` (k,) [m], ``started`` (lanes, m) marking the states that have seen a finite
+    elongation (a state starts relaxed at its first finite x, as offline), and scratch
+    buffers, so that :meth:`step` is a fixed sequence of numpy calls that allocates
+    nothing."""
+
+    def __init__(self, widths: np.ndarray, lanes: int, m: int):
+        k = len(widths)
+        self.widths = np.asarray(widths, float).reshape(k, 1, 1)
+        self.p = np.zeros((k, lanes, m))
+        self.started = np.zeros((lanes, m), bool)
+        self._lo, self._hi = np.zeros((k, lanes, m)), np.zeros((k, lanes, m))
+        self._ok, self._fresh = np.zeros((lanes, m), bool), np.zeros((lanes, m), bool)
+
+    def step(self, x: np.ndarray, out: np.ndarray) -> None:
+        """Advance the states with this tick's elongation ``x`` (lanes, m) [m] and write
+        s_r (k, lanes, m) [-] into ``out``; a non-finite x leaves its state as it is."""
+        p, ok, fresh, lo, hi = self.p, self._ok, self._fresh, self._lo, self._hi
+        np.isfinite(x, out=ok)
+        np.logical_not(self.started, out=fresh)
+        np.logical_and(fresh, ok, out=fresh)
+        np.copyto(p, x, where=fresh)                      # (k, lanes, m) <- (lanes, m)
+        np.logical_or(self.started, ok, out=self.started)
+        np.subtract(x, self.widths, out=lo)
+        np.maximum(lo, p, out=lo)
+        np.add(x, self.widths, out=hi)
+        np.minimum(hi, lo, out=hi)                        # min(x + r, max(x - r, p))
+        np.copyto(p, hi, where=ok)
+        np.subtract(x, p, out=out)
+        np.divide(out, self.widths, out=out)

@@ -12,7 +12,7 @@ import numpy as np
 from cablesvc.models.terms.base import LiveTerm, Term
 from cablesvc.models.terms.material import (AmplitudeStiffness, AsymmetricHardening, amplitude_varies,
                                             elongation_centre_scale)
-from cablesvc.models.play import stop_columns, stop_step
+from cablesvc.models.play import LiveStops, stop_columns
 from cablesvc.models.terms.signals import Signals, cable_view
 
 __all__ = ["Recalibration", "hysteretic_part"]
@@ -191,7 +191,7 @@ class Recalibration(Term):
         ``g`` and the elongation's envelope ``env`` [mm] (:func:`envelope` offline,
         :class:`_RecalibrationLive` live), which is clamped at ``E_hi`` in place: callers pass
         an array of their own. The stops, which carry a state, are written by the caller
-        (:func:`~cablesvc.models.play.stop_columns` offline, :func:`~cablesvc.models.play.stop_step`
+        (:func:`~cablesvc.models.play.stop_columns` offline, :class:`~cablesvc.models.play.LiveStops`
         live)."""
         o, ks, ah, c2 = out[:4]
         o.fill(1.0)
@@ -244,11 +244,10 @@ class _RecalibrationLive(LiveTerm):
         self.lo = np.zeros((lanes, m))
         self.env = np.zeros((lanes, m))
         self.started = np.zeros(1, bool)
-        k = len(STOP_WIDTHS)
-        self.widths = np.asarray(STOP_WIDTHS, float).reshape(k, 1, 1)
-        self.play = np.zeros((k, lanes, m))               # the stops' play states [m]
-        self.play_started = np.zeros((lanes, m), bool)
-        self._lo, self._hi = np.zeros((k, lanes, m)), np.zeros((k, lanes, m))
+        self.stops = LiveStops(STOP_WIDTHS, lanes, m)
+        # a file whose stops are all 0 (the loop not taken, or written before it) leaves
+        # their rows at 0 and does not run them each tick
+        self.loop = bool(np.any(self.P[_N_BASE:] != 0.0))
 
     def write(self, g):
         if not self.started[0]:
@@ -260,11 +259,12 @@ class _RecalibrationLive(LiveTerm):
         np.subtract(self.hi, self.lo, out=self.env)
         np.multiply(self.env, 0.5e3, out=self.env)
         self.term.law(g, self.R, self.H, self.env, self.cols)
-        stop_step(self.play, g.x, self.widths, self.cols[_N_BASE:], self.play_started, self._lo, self._hi)
+        if self.loop:
+            self.stops.step(g.x, self.cols[_N_BASE:])
 
     def state_dict(self):
         return {"hi": self.hi.copy(), "lo": self.lo.copy(), "started": self.started.copy(),
-                "play": self.play.copy(), "play_started": self.play_started.copy()}
+                "play": self.stops.p.copy(), "play_started": self.stops.started.copy()}
 
     def load_state_dict(self, d):
         if "hi" not in d or np.shape(d["hi"]) != self.hi.shape:     # a state saved without it
@@ -272,9 +272,9 @@ class _RecalibrationLive(LiveTerm):
         np.copyto(self.hi, d["hi"])
         np.copyto(self.lo, d["lo"])
         np.copyto(self.started, d["started"])
-        if "play" in d and np.shape(d["play"]) == self.play.shape:  # a state saved before the stops: relaxed
-            np.copyto(self.play, d["play"])
-            np.copyto(self.play_started, d["play_started"])
+        if "play" in d and np.shape(d["play"]) == self.stops.p.shape:  # saved before the stops: relaxed
+            np.copyto(self.stops.p, d["play"])
+            np.copyto(self.stops.started, d["play_started"])
 
 
 _ASYMMETRIC = AsymmetricHardening()
