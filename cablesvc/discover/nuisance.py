@@ -56,7 +56,8 @@ from cablesvc.models.terms.recalibration import DAMPING_LEVELS, DAMPING_PER_MM, 
 __all__ = ["Recalibration", "hysteretic_part", "describe_recalibration", "loop_gate"]
 
 
-def loop_gate(s: Any, r: np.ndarray, noise: np.ndarray, blocks: list, alpha: float = 0.05) -> dict[str, Any]:
+def loop_gate(s: Any, r: np.ndarray, noise: np.ndarray, blocks: list, alpha: float = 0.05,
+              cache: Any = None) -> dict[str, Any]:
     """Whether this robot's recalibration takes the rate-independent loop (the stops of
     :class:`Recalibration`): on each cable, the recalibration without the stops against the
     one with them, leave-one-block-out on ``blocks`` (the screen's units), one-sided
@@ -66,15 +67,16 @@ def loop_gate(s: Any, r: np.ndarray, noise: np.ndarray, blocks: list, alpha: flo
     bring a loop into the nuisance by itself, and a robot whose cables show no loop
     (the development bench's truth law) keeps the recalibration without it. Returns
     {"used", "cables" (those where it helped), "p" and "gain" per cable [noise variances],
-    "alpha", "widths_mm"}."""
+    "alpha", "widths_mm"}. ``cache``: the discovery's design cache, so that the variant
+    chosen is not built again."""
     from cablesvc.discover.evidence import block_gain_test, loo_errors
     from cablesvc.discover.select import DesignCache
     with_loop, without = Recalibration(stops=True), Recalibration(stops=False)
-    ca, cb = DesignCache(), DesignCache()
+    cache = cache if cache is not None else DesignCache()
     p, gain = [], []
     for c in range(s.m):
-        e1 = loo_errors(s, c, r[:, c], [with_loop], [{}], blocks, ca)
-        e0 = loo_errors(s, c, r[:, c], [without], [{}], blocks, cb)
+        e1 = loo_errors(s, c, r[:, c], [with_loop], [{}], blocks, cache)
+        e0 = loo_errors(s, c, r[:, c], [without], [{}], blocks, cache)
         t = block_gain_test(e0, e1, float(noise[c]))
         p.append(float(t["p"]))
         gain.append(float(t["gain"]))

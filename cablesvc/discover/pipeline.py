@@ -692,8 +692,9 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     from cablesvc.models.terms import LIBRARY
 
     m = s.m
+    cache = DesignCache()
     # the recalibration takes a rate-independent loop where most cables show one
-    loop = loop_gate(s, r, noise, block_ids(s.t, block / 2.0, train | valid), ALPHA)
+    loop = loop_gate(s, r, noise, block_ids(s.t, block / 2.0, train | valid), ALPHA, cache)
     nuis = Recalibration(stops=loop["used"])
     cands = [t for t in terms if not t.model_form]
     # the selector of this mode is the block screen (:mod:`cablesvc.discover.screen`); a
@@ -702,7 +703,6 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     screen = (selector if isinstance(selector, BlockScreen)
               else BlockScreen(alpha=ALPHA, share_min=SHARE_MIN, gain_min=GAIN_MIN, share_robot=SHARE_ROBOT,
                                     gain_further=GAIN_FURTHER))
-    cache = DesignCache()
     # the measured forces' equilibrium (002 eq 2) comes first: it needs no cable model. A
     # force channel that lags breaks the balance, and no error of the cable law can; where
     # the recording balances once the lag is put back, the dead time is named on that

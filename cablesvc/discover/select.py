@@ -74,7 +74,7 @@ class DesignCache:
 
     def get(self, term: Term, s: Signals, c: int, h: dict[str, float], strip: bool = False,
             delay: float = 0.0) -> Design:
-        key = (term.name, c, tuple(sorted((k, round(float(v), 12)) for k, v in h.items())), round(delay, 12))
+        key = (term.design_key, c, tuple(sorted((k, round(float(v), 12)) for k, v in h.items())), round(delay, 12))
         d = self.d.get(key)
         if d is None:
             if delay > 0:

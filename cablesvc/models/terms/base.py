@@ -51,6 +51,13 @@ class Term:
     refine_hyper: Optional[str] = None
     refine_bounds: tuple[float, float] = (0.0, 0.0)
 
+    @property
+    def design_key(self) -> str:
+        """What tells this term's designs apart from another's of the same recording,
+        cable and hyper-parameters (a design cache's key): its name, unless one term has
+        variants with other columns."""
+        return self.name
+
     def applies(self, s: Signals, c: int) -> bool:
         """Whether the term can act on cable ``c`` of this recording (e.g. a pulley term
         needs a pulley, the temperature term a temperature channel)."""

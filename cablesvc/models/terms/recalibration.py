@@ -172,6 +172,10 @@ class Recalibration(Term):
         #: held at 0); the live form always runs them, with the coefficients the file gives
         self.stops = bool(stops)
 
+    @property
+    def design_key(self) -> str:
+        return f"{self.name}+stops" if self.stops else self.name
+
     def refs(self, s, c, h):
         R = {**_backbone_refs(s, c), "A_mean": s.train_mean(s.amplitude[:, c]),
              "has_A": float(amplitude_varies(s, c)), "E_hi": _largest(envelope(s.x[:, c]), s.train)}
