@@ -285,7 +285,7 @@ def _realistic_row(spec: Any, seed: int) -> dict[str, Any]:
             "test_rmse_after_over_noise": after,
             "baseline_rmse_over_noise": (rb / RN).tolist() if rb.size else None,
             "effect_vs_limit": vs_limit,
-            "loop_used": bool(((getattr(d, "recalibration", None) or {}).get("loop") or {}).get("used", False)),
+            "loop_used": bool(d.recalibration.get("loop", {}).get("used")),
             "wrench_rms": case.wrench, "seconds": {"simulate": case.seconds["simulate"], "discover": td},
             "robot_seconds": dict(sr.seconds)}
 

@@ -270,7 +270,7 @@ class Discovery:
 
     def summary(self) -> list[str]:
         lines = [self.verdict()] if self.options.get("mode") == "identified" else []
-        m_all = self.residual.shape[1]
+        m = self.residual.shape[1]
         st = self.options.get("stream")
         if st:
             lines.append(describe_reduction(st) + "; fits and held-out scores are on those ticks")
@@ -292,7 +292,7 @@ class Discovery:
         lp = rc.get("loop") or {}
         if lp.get("used"):
             lines.append(f"the cables show a rate-independent loop that the baseline's law lacks (on "
-                         f"{len(lp['cables'])} of {m_all} cables the recalibration gains from Prandtl-Ishlinskii "
+                         f"{len(lp['cables'])} of {m} cables the recalibration gains from Prandtl-Ishlinskii "
                          f"stops of {', '.join(f'{w:g}' for w in lp['widths_mm'])} mm, block-level p < {lp['alpha']:g}): "
                          "it is part of the recalibration on every cable, the baseline's model form, not a "
                          "concealed effect")
@@ -322,7 +322,6 @@ class Discovery:
             lines.append("what this recording cannot show beside the baseline's recalibration (detection limits; "
                          "the first figure is a lower bound, the second an estimate for a typical cable):")
             lines.extend("  " + d["words"] for d in self.detection)
-        m = self.residual.shape[1]
         lines.append("held-out (test) RMSE per cable [N], before -> after: " + "; ".join(
             f"{c}: {self.rmse_before[c]:.3g} -> {self.rmse_after[c]:.3g}" for c in range(m)))
         return lines
