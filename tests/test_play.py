@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cablesvc.models.play import LiveStops, stop_columns
+from cablesvc.models.play import LiveStops, initial_state_columns, stop_columns
 
 
 def test_stop_is_elastic_then_slides_and_remembers_its_reversal():
@@ -45,3 +45,43 @@ def test_live_step_equals_the_offline_record_with_gaps():
             np.testing.assert_array_equal(off.T, live[:, :, ln, c])
     assert np.isnan(live[51, 0, 0, 1]) and np.isfinite(live[53, 0, 0, 1])
     assert np.all(np.abs(live[np.isfinite(live)]) <= 1.0 + 1e-12)
+
+
+def test_the_initial_state_column_is_the_gap_between_the_extreme_starts_and_closes_after_2r():
+    r = 1e-3
+    # rest, then 1.5 mm down (less than 2 r: the start is still remembered), then 3 mm up
+    x = np.r_[np.zeros(10), np.linspace(0.0, -1.5e-3, 16), np.linspace(-1.4e-3, 1.6e-3, 31)]
+    d = initial_state_columns(x, np.array([r]), np.empty((1, x.size)))[0]
+    hi = stop_columns(x, np.array([r]), np.empty((1, x.size)), starts=[1.0])[0]
+    lo = stop_columns(x, np.array([r]), np.empty((1, x.size)), starts=[-1.0])[0]
+    mid = stop_columns(x, np.array([r]), np.empty((1, x.size)))[0]
+    assert hi[0] == 1.0 and lo[0] == -1.0 and mid[0] == 0.0
+    np.testing.assert_array_equal(d, 0.5 * (hi - lo))
+    assert np.all(d[:10] == 1.0)                                     # at rest nothing is forgotten
+    assert np.all(np.diff(d) <= 1e-15) and np.all((d >= 0.0) & (d <= 1.0))
+    # 1.5 mm down: the stop started at -1 slides after 0 mm, the one at +1 only after 2 mm
+    assert abs(d[25] - (1.0 - 1.5e-3 / (2 * r))) < 1e-12
+    # every start lies between the extremes: the relaxed one too
+    assert np.all((mid <= hi + 1e-15) & (mid >= lo - 1e-15))
+    # after the 3 mm rise (more than 2 r past the turn) every start gives the same state
+    assert d[-1] == 0.0 and hi[-1] == lo[-1] == mid[-1] == 1.0
+
+
+def test_live_stops_from_any_start_equal_the_offline_record():
+    rng = np.random.default_rng(5)
+    N, lanes, m = 300, 2, 2
+    x = np.cumsum(rng.normal(0, 2e-4, (N, lanes, m)), axis=0)
+    x[0, 0, 1] = np.nan
+    widths = np.array([3e-4, 1e-3, 3e-4, 1e-3])
+    starts = np.array([1.0, 1.0, -1.0, -0.5])
+    stops = LiveStops(widths, lanes, m, starts=starts)
+    out = np.zeros((widths.size, lanes, m))
+    live = np.empty((N, widths.size, lanes, m))
+    for n in range(N):
+        stops.step(x[n], out)
+        live[n] = out
+    for ln in range(lanes):
+        for c in range(m):
+            off = stop_columns(x[:, ln, c], widths, np.empty((widths.size, N)), starts=starts)
+            np.testing.assert_array_equal(off.T, live[:, :, ln, c])
+    np.testing.assert_allclose(live[1, :, 0, 1], starts, atol=1e-12)  # its first finite tick

@@ -11,7 +11,8 @@ baseline family's own parameters plus a smooth discrepancy in its own variables:
 
     delta_f = o + k_s f0 + a_h h + c2 xi^2 / s + c3 xi^3 / s^2 + K1_A (A - mean A) xi + d_A A tanh(v / v_s)
               + sum_a (c_ra + c_ra_e E) sgn(v) (|v| / v_ref)^a,   a = 0, 0.25
-              [+ sum_r c_sr s_r(x),   r = 0.3, 1, 3 mm: where most cables show a rate-independent loop]
+              [+ sum_r (c_sr s_r(x) + c_ir d_r(x)),   r = 0.3, 1, 3 mm: where most cables show a
+               rate-independent loop]
 
 with f0 the baseline force [N], xi = x - mean x the elongation about its training mean
 [m] and s its training std [m], h = f0 - P3(x) the baseline's hysteretic part (f0 minus its
@@ -30,7 +31,9 @@ amplitude estimator" among the model-form errors). The exponents stay well below
 force's 1, so that a Kelvin-Voigt damper keeps a part of its own. Only inputs enter these columns (never the
 measured force). The bracketed columns are Prandtl-Ishlinskii stops (elastic-perfectly-plastic
 elements of widths r driven by x, :mod:`cablesvc.models.play`), a rate-independent loop that
-002 eq 8 cannot draw (a rope's strand slip); :func:`loop_gate` adds them on every cable of a
+002 eq 8 cannot draw (a rope's strand slip), with the loop's unknown state at the
+recording's start (d_r, 1 on the first tick, 0 once the elongation has moved 2 r one way);
+:func:`loop_gate` adds them on every cable of a
 robot where most of its cables gain from them on held-out blocks (the model form is
 the cable type's, on every cable; a concealed effect is on some).
 
@@ -51,7 +54,7 @@ from typing import Any
 import numpy as np
 
 from cablesvc.models.terms import Recalibration, hysteretic_part
-from cablesvc.models.terms.recalibration import DAMPING_LEVELS, DAMPING_PER_MM, STOP_WIDTHS, STOPS
+from cablesvc.models.terms.recalibration import DAMPING_LEVELS, DAMPING_PER_MM, INITIAL, STOP_WIDTHS, STOPS
 
 __all__ = ["Recalibration", "hysteretic_part", "describe_recalibration", "loop_gate"]
 
@@ -62,7 +65,8 @@ def loop_gate(s: Any, r: np.ndarray, noise: np.ndarray, blocks: list, alpha: flo
     :class:`Recalibration`): on each cable, the recalibration without the stops against the
     one with them, leave-one-block-out on ``blocks`` (the screen's units), one-sided
     Wilcoxon signed-rank test of the per-block gains; the loop is used on every cable when it
-    helps at level ``alpha`` on most of them (more than half). The baseline's model form is the
+    helps at level ``alpha`` on most of them (more than half); the loop then also takes its
+    state at the recording's start (``Recalibration(stops=True)``). The baseline's model form is the
     cable type's and lies on every cable; a concealed effect lies on some, so it cannot
     bring a loop into the nuisance by itself, and a robot whose cables show no loop
     (the development bench's truth law) keeps the recalibration without it. Returns
@@ -71,7 +75,7 @@ def loop_gate(s: Any, r: np.ndarray, noise: np.ndarray, blocks: list, alpha: flo
     chosen is not built again."""
     from cablesvc.discover.evidence import block_gain_test, loo_errors
     from cablesvc.discover.select import DesignCache
-    with_loop, without = Recalibration(stops=True), Recalibration(stops=False)
+    with_loop, without = Recalibration(stops=True, initial=False), Recalibration(stops=False)
     cache = cache if cache is not None else DesignCache()
     p, gain = [], []
     for c in range(s.m):
@@ -97,4 +101,7 @@ def describe_recalibration(params: dict[str, Any]) -> str:
     loop = [params.get(n, 0.0) for n in STOPS]
     if any(loop):
         parts.append("rate-independent loop " + ", ".join(f"{v:+.2f} N at {1e3 * w:g} mm" for v, w in zip(loop, STOP_WIDTHS)))
+        start = sum(params.get(n, 0.0) for n in INITIAL)
+        if start:
+            parts.append(f"its state at the recording's start {start:+.2f} N")
     return ", ".join(parts)

@@ -293,7 +293,8 @@ class Discovery:
         if lp.get("used"):
             lines.append(f"the cables show a rate-independent loop that the baseline's law lacks (on "
                          f"{len(lp['cables'])} of {m} cables the recalibration gains from Prandtl-Ishlinskii "
-                         f"stops of {', '.join(f'{w:g}' for w in lp['widths_mm'])} mm, block-level p < {lp['alpha']:g}): "
+                         f"stops of {', '.join(f'{w:g}' for w in lp['widths_mm'])} mm and their state at the recording's start, "
+                         f"block-level p < {lp['alpha']:g}): "
                          "it is part of the recalibration on every cable, the baseline's model form, not a "
                          "concealed effect")
         for c in rc.get("cables", []):

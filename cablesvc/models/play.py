@@ -11,9 +11,19 @@ so s_r moves with x (elastic) until |x - p| = r and then stays at +-1 (sliding) 
 motion reverses. A weighted sum of stops of several widths is a Prandtl-Ishlinskii
 hysteresis: a chain of Jenkins (spring-slider) elements is one exactly, and other
 rate-independent loops (a wire or fibre rope's strand friction, a Bouc-Wen loop) are
-approximated by one (Brokate & Sprekels, Ch 2). The state starts at p = x on the first
-tick (s = 0: a relaxed element). A non-finite x leaves the state as it is and gives a
-non-finite s there, offline and live alike.
+approximated by one (Brokate & Sprekels, Ch 2). By default the state starts at p = x on
+the first finite tick (s = 0: a relaxed element); ``starts`` gives another initial s_0 in
+[-1, 1] (p = x - s_0 r). A non-finite x leaves the state as it is and gives a non-finite s
+there, offline and live alike.
+
+A recording starts in a state of the loop nobody knows. Stops started in the two extreme
+states, s_0 = +1 and -1, give the bounds every other start lies between; they coincide once
+the elongation has moved 2 r one way (the loop's memory of its start is wiped out, the
+wiping-out property of Preisach and Prandtl-Ishlinskii operators: Mayergoyz, *Mathematical
+Models of Hysteresis*, Springer 1991, Ch 1). Half their difference,
+d_r = (s_r^+ - s_r^-) / 2 in [0, 1] (:func:`initial_state_columns`), is 1 on the first tick
+and 0 once the start is forgotten: a column whose coefficient is the part of the loop's
+force its unknown initial state leaves.
 """
 
 from __future__ import annotations
@@ -21,20 +31,20 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["LiveStops", "stop_columns"]
+__all__ = ["LiveStops", "initial_state_columns", "stop_columns"]
 
 
 @numba.njit(cache=True)
-def _stops(x, widths, out):                       # pragma: no cover - compiled
+def _stops(x, widths, starts, out):               # pragma: no cover - compiled
     n = x.shape[0]
     for j in range(widths.shape[0]):
         r = widths[j]
-        p = x[0]
+        p = np.nan
         for i in range(n):
             xi = x[i]
             if np.isfinite(xi):
                 if not np.isfinite(p):
-                    p = xi
+                    p = xi - starts[j] * r
                 if p < xi - r:
                     p = xi - r
                 elif p > xi + r:
@@ -42,23 +52,43 @@ def _stops(x, widths, out):                       # pragma: no cover - compiled
             out[j, i] = (xi - p) / r
 
 
-def stop_columns(x: np.ndarray, widths: np.ndarray, out: np.ndarray) -> np.ndarray:
+def stop_columns(x: np.ndarray, widths: np.ndarray, out: np.ndarray, starts=None) -> np.ndarray:
     """The stops s_r (k, N) [-] of widths ``widths`` (k,) [m] over the elongation record
-    ``x`` (N,) [m], into ``out`` (k, N), each from a relaxed state at the first finite tick."""
-    _stops(np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(widths, dtype=np.float64), out)
+    ``x`` (N,) [m], into ``out`` (k, N), each from the state s_0 ``starts`` (k,) [-] in
+    [-1, 1] at the first finite tick (default 0: relaxed)."""
+    w = np.ascontiguousarray(widths, dtype=np.float64)
+    s0 = np.zeros(w.size) if starts is None else np.ascontiguousarray(np.broadcast_to(starts, w.shape), dtype=np.float64)
+    _stops(np.ascontiguousarray(x, dtype=np.float64), w, s0, out)
+    return out
+
+
+def initial_state_columns(x: np.ndarray, widths: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """d_r = (s_r^+ - s_r^-) / 2 (k, N) [-] into ``out``: half the difference between the
+    stops of widths ``widths`` (k,) [m] started at s_0 = +1 and at s_0 = -1 over the
+    elongation record ``x`` (N,) [m]; 1 at the first finite tick, 0 once x has moved 2 r one
+    way (the start forgotten). See the module."""
+    k = len(widths)
+    lo = np.empty((k, np.shape(x)[0]))
+    stop_columns(x, widths, out, starts=np.ones(k))
+    stop_columns(x, widths, lo, starts=-np.ones(k))
+    np.subtract(out, lo, out=out)
+    np.multiply(out, 0.5, out=out)
     return out
 
 
 class LiveStops:
     """The stops live, tick by tick: play states ``p`` (k, lanes, m) [m] for the widths
     ``widths`` (k,) [m], ``started`` (lanes, m) marking the states that have seen a finite
-    elongation (a state starts relaxed at its first finite x, as offline), and scratch
-    buffers, so that :meth:`step` is a fixed sequence of numpy calls that allocates
-    nothing."""
+    elongation (a state starts at its first finite x in the state ``starts`` (k,) [-],
+    default 0: relaxed, as offline), and scratch buffers, so that :meth:`step` is a fixed
+    sequence of numpy calls that allocates nothing."""
 
-    def __init__(self, widths: np.ndarray, lanes: int, m: int):
+    def __init__(self, widths: np.ndarray, lanes: int, m: int, starts=None):
         k = len(widths)
         self.widths = np.asarray(widths, float).reshape(k, 1, 1)
+        s0 = np.zeros(k) if starts is None else np.broadcast_to(np.asarray(starts, float), (k,))
+        #: x - p at the start [m]: s_0 r
+        self.offset = (s0.reshape(k, 1, 1) * self.widths).copy()
         self.p = np.zeros((k, lanes, m))
         self.started = np.zeros((lanes, m), bool)
         self._lo, self._hi = np.zeros((k, lanes, m)), np.zeros((k, lanes, m))
@@ -71,7 +101,8 @@ class LiveStops:
         np.isfinite(x, out=ok)
         np.logical_not(self.started, out=fresh)
         np.logical_and(fresh, ok, out=fresh)
-        np.copyto(p, x, where=fresh)                      # (k, lanes, m) <- (lanes, m)
+        np.subtract(x, self.offset, out=lo)               # the start p = x - s_0 r
+        np.copyto(p, lo, where=fresh)
         np.logical_or(self.started, ok, out=self.started)
         np.subtract(x, self.widths, out=lo)
         np.maximum(lo, p, out=lo)

@@ -5,14 +5,14 @@ and the baseline's hysteretic part it is built on (:func:`hysteretic_part`).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 
 from cablesvc.models.terms.base import LiveTerm, Term
 from cablesvc.models.terms.material import (AmplitudeStiffness, AsymmetricHardening, amplitude_varies,
                                             elongation_centre_scale)
-from cablesvc.models.play import LiveStops, stop_columns
+from cablesvc.models.play import LiveStops, initial_state_columns, stop_columns
 from cablesvc.models.terms.signals import Signals, cable_view
 
 __all__ = ["Recalibration", "hysteretic_part"]
@@ -66,6 +66,11 @@ _RATE = DAMPING_LEVELS + DAMPING_PER_MM
 STOP_WIDTHS = (3e-4, 1e-3, 3e-3)
 #: ... and their parameters, the force of each stop at full yield [N] (``c_s03``: 0.3 mm)
 STOPS = tuple(f"c_s{round(w * 1e4):02d}" for w in STOP_WIDTHS)
+#: ... and the force their unknown state at the recording's start leaves, per width [N]
+#: (``c_i03``: 0.3 mm), on the initial-state columns d_r (:func:`~cablesvc.models.play.initial_state_columns`)
+INITIAL = tuple(f"c_i{round(w * 1e4):02d}" for w in STOP_WIDTHS)
+#: the loop's parameters: its stops and their initial state, used together or not at all
+LOOP = STOPS + INITIAL
 _N_BASE = 7 + 2 * len(RATE_EXPONENTS)               # the columns before the stops
 
 
@@ -108,7 +113,7 @@ class Recalibration(Term):
 
         delta_f = o + k_s f0 + a_h h + c2 xi^2 / s + c3 xi^3 / s^2 + K1_A (A - mean A) xi + d_A A tanh(v / v_s)
                   + sum_a (c_ra + c_ra_e E) sgn(v) (|v| / v_ref)^a,   a in RATE_EXPONENTS = (0, 0.25)
-                  [+ sum_r c_sr s_r(x),   r in STOP_WIDTHS = (0.3, 1, 3) mm]
+                  [+ sum_r (c_sr s_r(x) + c_ir d_r(x)),   r in STOP_WIDTHS = (0.3, 1, 3) mm]
 
     f0 the baseline force [N], xi = x - mean x [m], s its training std [m], h = f0 - P3(x)
     the baseline's hysteretic part (f0 minus its least-squares cubic backbone in x on the
@@ -125,7 +130,12 @@ class Recalibration(Term):
     stay well below a viscous force's 1, which keeps a part of its own.
     The last, optional, columns are a rate-independent loop: Prandtl-Ishlinskii stops s_r of
     widths r (:mod:`cablesvc.models.play`; s_r in [-1, 1], c_sr [N] the force of each at full
-    yield). A rope whose strands slip (a Bouc-Wen-like loop, which the realistic bench's
+    yield), started relaxed, and the loop's unknown state at the recording's start: d_r in
+    [0, 1], half the difference between the stop started at full yield either way, 1 on the
+    first tick and 0 once the elongation has moved 2 r one way (c_ir [N]). A recording starts
+    wherever the rope's loop happens to be; with the stops alone, the first seconds of a
+    recording whose loop did not start relaxed were a misfit that a creep's settling or a
+    pulley's friction "explained" (measured: docs/discovery.md, "A rate-independent loop"). A rope whose strands slip (a Bouc-Wen-like loop, which the realistic bench's
     ``--truth-hysteresis boucwen`` draws) is a loop 002 eq 8's damping cannot draw: its force
     turns over a yield elongation after each reversal, whatever the speed. The stops are used
     only where discovery finds that most of the robot's cables show such a loop
@@ -156,25 +166,36 @@ class Recalibration(Term):
     name = "baseline"
     label = "baseline recalibration (its own parameters and a smooth discrepancy in its own state)"
     equation = ("o + k_s f0 + a_h h + c2 xi^2/s + c3 xi^3/s^2 + K1_A (A - mean A) xi + d_A A tanh(v/v_s)"
-                " + sum_a (c_ra + c_ra_e E) sgn(v) |v/v_ref|^a [+ sum_r c_sr s_r(x)]  (002 eq 8, 001 Ch 4; "
+                " + sum_a (c_ra + c_ra_e E) sgn(v) |v/v_ref|^a [+ sum_r (c_sr s_r(x) + c_ir d_r(x))]  (002 eq 8, 001 Ch 4; "
                 "Prandtl-Ishlinskii stops; Kennedy & O'Hagan 2001)")
     variable = "baseline force f0 [N]"
-    params = ("o", "k_s", "a_h", "c2", "c3", "K1_A", "d_A", *_RATE, *STOPS)
+    params = ("o", "k_s", "a_h", "c2", "c3", "K1_A", "d_A", *_RATE, *LOOP)
     units = ("N", "-", "-", "N", "N", "N/m^2", "N/m", *("N" for _ in RATE_EXPONENTS),
-             *("N/mm" for _ in RATE_EXPONENTS), *("N" for _ in STOPS))
+             *("N/mm" for _ in RATE_EXPONENTS), *("N" for _ in LOOP))
     ref_names = ("x_mean", "x_scale", "h0", "h1", "h2", "h3", "A_mean", "E_hi",
                  *(f"{side}_{n}" for n in _HELD for side in ("lo", "hi")))
     owns_nuisance = True
-    held = _HELD
+    #: the amplitude columns, held offline and live within their training range; and the
+    #: loop's initial state, 1 on the first tick and 0 once it is forgotten, which lies in
+    #: [0, 1] anyway: held too, so that a fold which leaves out the recording's start does not
+    #: extrapolate a coefficient fitted where the column is all but 0 (a leave-one-block-out
+    #: fit holds a held column within its own fitted ticks' range: Design.held)
+    held = _HELD + INITIAL
 
-    def __init__(self, stops: bool = False):
-        #: whether the fit uses the stops (False, the default: their columns are dropped,
-        #: held at 0); the live form always runs them, with the coefficients the file gives
+    def __init__(self, stops: bool = False, initial: Optional[bool] = None):
+        #: whether the fit uses the loop's stops (False, the default: their columns are
+        #: dropped, held at 0); the live form runs them wherever the file gives them a
+        #: coefficient
         self.stops = bool(stops)
+        #: whether the fit also takes the loop's state at the recording's start (default: with
+        #: the stops). The gate (:func:`cablesvc.discover.nuisance.loop_gate`) asks about the
+        #: stops alone: their initial state adds nothing where the loop started relaxed, and
+        #: three more columns cost a small robot-wide test its power
+        self.initial = self.stops if initial is None else bool(initial) and self.stops
 
     @property
     def design_key(self) -> str:
-        return f"{self.name}+stops" if self.stops else self.name
+        return self.name + ("+stops" if self.stops else "") + ("+initial" if self.initial else "")
 
     def refs(self, s, c, h):
         R = {**_backbone_refs(s, c), "A_mean": s.train_mean(s.amplitude[:, c]),
@@ -187,16 +208,19 @@ class Recalibration(Term):
 
     def columns(self, g, R, h, out):
         self.law(g, R, h, envelope(g.x), out)
-        stop_columns(g.x, np.asarray(STOP_WIDTHS), out[_N_BASE:])
+        k = len(STOP_WIDTHS)
+        stop_columns(g.x, np.asarray(STOP_WIDTHS), out[_N_BASE:_N_BASE + k])
+        initial_state_columns(g.x, np.asarray(STOP_WIDTHS), out[_N_BASE + k:])
 
     @staticmethod
     def law(g, R, h, env, out):
         """The columns before the stops (the first ``_N_BASE`` of ``out``) from the signals
         ``g`` and the elongation's envelope ``env`` [mm] (:func:`envelope` offline,
         :class:`_RecalibrationLive` live), which is clamped at ``E_hi`` in place: callers pass
-        an array of their own. The stops, which carry a state, are written by the caller
-        (:func:`~cablesvc.models.play.stop_columns` offline, :class:`~cablesvc.models.play.LiveStops`
-        live)."""
+        an array of their own. The loop's columns, which carry a state, are written by the
+        caller (:func:`~cablesvc.models.play.stop_columns` and
+        :func:`~cablesvc.models.play.initial_state_columns` offline,
+        :class:`~cablesvc.models.play.LiveStops` live)."""
         o, ks, ah, c2 = out[:4]
         o.fill(1.0)
         np.copyto(ks, g.f0)
@@ -226,7 +250,9 @@ class Recalibration(Term):
     def design(self, s, c, h):
         d = super().design(s, c, h)
         if not self.stops:
-            d = d.without(STOPS)
+            d = d.without(LOOP)
+        elif not self.initial:
+            d = d.without(INITIAL)
         return d if d.refs.get("has_A", 1.0) else d.without(_HELD)
 
     def evidence(self, s, c, h):
@@ -248,9 +274,13 @@ class _RecalibrationLive(LiveTerm):
         self.lo = np.zeros((lanes, m))
         self.env = np.zeros((lanes, m))
         self.started = np.zeros(1, bool)
-        self.stops = LiveStops(STOP_WIDTHS, lanes, m)
-        # a file whose stops are all 0 (the loop not taken, or written before it) leaves
-        # their rows at 0 and does not run them each tick
+        # the stops from a relaxed start, then from full yield either way (their half
+        # difference is the initial state's column)
+        k = len(STOP_WIDTHS)
+        self.stops = LiveStops(STOP_WIDTHS * 3, lanes, m, starts=[0.0] * k + [1.0] * k + [-1.0] * k)
+        self.s = np.zeros((3 * k, lanes, m))
+        # a file whose loop is all 0 (not taken, or written before it) leaves its rows at 0
+        # and does not run it each tick
         self.loop = bool(np.any(self.P[_N_BASE:] != 0.0))
 
     def write(self, g):
@@ -264,7 +294,12 @@ class _RecalibrationLive(LiveTerm):
         np.multiply(self.env, 0.5e3, out=self.env)
         self.term.law(g, self.R, self.H, self.env, self.cols)
         if self.loop:
-            self.stops.step(g.x, self.cols[_N_BASE:])
+            k = len(STOP_WIDTHS)
+            self.stops.step(g.x, self.s)
+            np.copyto(self.cols[_N_BASE:_N_BASE + k], self.s[:k])
+            init = self.cols[_N_BASE + k:]
+            np.subtract(self.s[k:2 * k], self.s[2 * k:], out=init)
+            np.multiply(init, 0.5, out=init)
 
     def state_dict(self):
         return {"hi": self.hi.copy(), "lo": self.lo.copy(), "started": self.started.copy(),
@@ -276,7 +311,7 @@ class _RecalibrationLive(LiveTerm):
         np.copyto(self.hi, d["hi"])
         np.copyto(self.lo, d["lo"])
         np.copyto(self.started, d["started"])
-        if "play" in d and np.shape(d["play"]) == self.stops.p.shape:  # saved before the stops: relaxed
+        if "play" in d and np.shape(d["play"]) == self.stops.p.shape:  # saved before the loop: relaxed
             np.copyto(self.stops.p, d["play"])
             np.copyto(self.stops.started, d["play_started"])
 
