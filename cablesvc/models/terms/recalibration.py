@@ -135,14 +135,16 @@ class Recalibration(Term):
     first tick and 0 once the elongation has moved 2 r one way (c_ir [N]). A recording starts
     wherever the rope's loop happens to be; with the stops alone, the first seconds of a
     recording whose loop did not start relaxed were a misfit that a creep's settling or a
-    pulley's friction "explained" (measured: docs/discovery.md, "A rate-independent loop"). A rope whose strands slip (a Bouc-Wen-like loop, which the realistic bench's
-    ``--truth-hysteresis boucwen`` draws) is a loop 002 eq 8's damping cannot draw: its force
+    pulley's friction "explained" (measured: docs/discovery.md, "The loop's state at the
+    recording's start"). A rope whose strands slip (a Bouc-Wen-like loop, which the realistic
+    bench's ``--truth-hysteresis boucwen`` draws) is a loop 002 eq 8's damping cannot draw: its force
     turns over a yield elongation after each reversal, whatever the speed. The stops are used
     only where discovery finds that most of the robot's cables show such a loop
     (:func:`cablesvc.discover.nuisance.loop_gate`, then ``Recalibration(stops=True)``; by
     default they are held at 0): on a robot without one they would take part of a creep, a sag or a viscous force
-    (measured: docs/discovery.md, "A rate-independent loop"). The live form always runs them,
-    with the coefficients the file gives (0 where unused, or in a file written before them).
+    (measured: docs/discovery.md, "A rate-independent loop"). The live form runs the loop
+    with the coefficients the file gives, and not at all where they are 0 (unused, or a file
+    written before them).
     An identified baseline's damping is the loop
     area of millimetre sines at one working point; along a trajectory its amplitude
     normalisation is the least reliable part of its law (issue 15 lists "another amplitude
@@ -279,6 +281,8 @@ class _RecalibrationLive(LiveTerm):
         k = len(STOP_WIDTHS)
         self.stops = LiveStops(STOP_WIDTHS * 3, lanes, m, starts=[0.0] * k + [1.0] * k + [-1.0] * k)
         self.s = np.zeros((3 * k, lanes, m))
+        self._views = (self.s[:k], self.s[k:2 * k], self.s[2 * k:], self.cols[_N_BASE:_N_BASE + k],
+                       self.cols[_N_BASE + k:])
         # a file whose loop is all 0 (not taken, or written before it) leaves its rows at 0
         # and does not run it each tick
         self.loop = bool(np.any(self.P[_N_BASE:] != 0.0))
@@ -294,12 +298,17 @@ class _RecalibrationLive(LiveTerm):
         np.multiply(self.env, 0.5e3, out=self.env)
         self.term.law(g, self.R, self.H, self.env, self.cols)
         if self.loop:
-            k = len(STOP_WIDTHS)
+            relaxed, up, down, stops, init = self._views
             self.stops.step(g.x, self.s)
-            np.copyto(self.cols[_N_BASE:_N_BASE + k], self.s[:k])
-            init = self.cols[_N_BASE + k:]
-            np.subtract(self.s[k:2 * k], self.s[2 * k:], out=init)
+            np.copyto(stops, relaxed)
+            np.subtract(up, down, out=init)
             np.multiply(init, 0.5, out=init)
+
+    def bind(self, cols, coef):
+        super().bind(cols, coef)
+        # the views the loop writes through, made once (a slice per tick would allocate)
+        k = len(STOP_WIDTHS)
+        self._views = (self.s[:k], self.s[k:2 * k], self.s[2 * k:], cols[_N_BASE:_N_BASE + k], cols[_N_BASE + k:])
 
     def state_dict(self):
         return {"hi": self.hi.copy(), "lo": self.lo.copy(), "started": self.started.copy(),
