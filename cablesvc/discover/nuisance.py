@@ -65,8 +65,10 @@ def loop_gate(s: Any, r: np.ndarray, noise: np.ndarray, blocks: list, alpha: flo
     :class:`Recalibration`): on each cable, the recalibration without the stops against the
     one with them, leave-one-block-out on ``blocks`` (the screen's units), one-sided
     Wilcoxon signed-rank test of the per-block gains; the loop is used on every cable when it
-    helps at level ``alpha`` on most of them (more than half); the loop then also takes its
-    state at the recording's start (``Recalibration(stops=True)``). The baseline's model form is the
+    helps at level ``alpha`` on most of them (more than half). The loop is its stops and their
+    state at the recording's start: asked about the stops alone, the gate took the loop on
+    fewer recordings of a robot whose cables all have one (docs/discovery.md, "The loop's
+    state at the recording's start"). The baseline's model form is the
     cable type's and lies on every cable; a concealed effect lies on some, so it cannot
     bring a loop into the nuisance by itself, and a robot whose cables show no loop
     (the development bench's truth law) keeps the recalibration without it. Returns
@@ -75,7 +77,7 @@ def loop_gate(s: Any, r: np.ndarray, noise: np.ndarray, blocks: list, alpha: flo
     chosen is not built again."""
     from cablesvc.discover.evidence import block_gain_test, loo_errors
     from cablesvc.discover.select import DesignCache
-    with_loop, without = Recalibration(stops=True, initial=False), Recalibration(stops=False)
+    with_loop, without = Recalibration(stops=True), Recalibration(stops=False)
     cache = cache if cache is not None else DesignCache()
     p, gain = [], []
     for c in range(s.m):

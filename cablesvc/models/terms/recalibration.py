@@ -5,7 +5,7 @@ and the baseline's hysteretic part it is built on (:func:`hysteretic_part`).
 
 from __future__ import annotations
 
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
 
@@ -184,20 +184,15 @@ class Recalibration(Term):
     #: fit holds a held column within its own fitted ticks' range: Design.held)
     held = _HELD + INITIAL
 
-    def __init__(self, stops: bool = False, initial: Optional[bool] = None):
-        #: whether the fit uses the loop's stops (False, the default: their columns are
-        #: dropped, held at 0); the live form runs them wherever the file gives them a
-        #: coefficient
+    def __init__(self, stops: bool = False):
+        #: whether the fit uses the loop, its stops and their state at the recording's start
+        #: (False, the default: their columns are dropped, held at 0); the live form runs
+        #: the loop wherever the file gives it a coefficient
         self.stops = bool(stops)
-        #: whether the fit also takes the loop's state at the recording's start (default: with
-        #: the stops). The gate (:func:`cablesvc.discover.nuisance.loop_gate`) asks about the
-        #: stops alone: their initial state adds nothing where the loop started relaxed, and
-        #: three more columns cost a small robot-wide test its power
-        self.initial = self.stops if initial is None else bool(initial) and self.stops
 
     @property
     def design_key(self) -> str:
-        return self.name + ("+stops" if self.stops else "") + ("+initial" if self.initial else "")
+        return f"{self.name}+loop" if self.stops else self.name
 
     def refs(self, s, c, h):
         R = {**_backbone_refs(s, c), "A_mean": s.train_mean(s.amplitude[:, c]),
@@ -253,8 +248,6 @@ class Recalibration(Term):
         d = super().design(s, c, h)
         if not self.stops:
             d = d.without(LOOP)
-        elif not self.initial:
-            d = d.without(INITIAL)
         return d if d.refs.get("has_A", 1.0) else d.without(_HELD)
 
     def evidence(self, s, c, h):
