@@ -90,8 +90,9 @@ def test_live_kernel_equals_offline_predict(robot, tmp_path, names):
     used = {t.name for f in d.full.values() for t in f.terms}
     assert set(n.split("+")[0] for n in names) <= used | {"temperature"} and used, "every term was fitted on some cable"
     if "baseline+loop" in names:                    # the loop's coefficients are in the file, not 0
-        from cablesvc.models.terms.recalibration import STOPS
-        assert any(f.params["baseline"][n] != 0.0 for f in d.full.values() for n in STOPS)
+        from cablesvc.models.terms.recalibration import INITIAL, STOPS
+        for part in (STOPS, INITIAL):               # the stops and their initial state both run live
+            assert any(f.params["baseline"][n] != 0.0 for f in d.full.values() for n in part)
     path = tmp_path / "augmented.toml"
     d.augmented_params().save(path)
     params = load_params(path)                      # through the file, as the daemon reads it

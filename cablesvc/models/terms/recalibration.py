@@ -274,8 +274,7 @@ class _RecalibrationLive(LiveTerm):
         k = len(STOP_WIDTHS)
         self.stops = LiveStops(STOP_WIDTHS * 3, lanes, m, starts=[0.0] * k + [1.0] * k + [-1.0] * k)
         self.s = np.zeros((3 * k, lanes, m))
-        self._views = (self.s[:k], self.s[k:2 * k], self.s[2 * k:], self.cols[_N_BASE:_N_BASE + k],
-                       self.cols[_N_BASE + k:])
+        self._bind_views(self.cols)
         # a file whose loop is all 0 (not taken, or written before it) leaves its rows at 0
         # and does not run it each tick
         self.loop = bool(np.any(self.P[_N_BASE:] != 0.0))
@@ -299,7 +298,11 @@ class _RecalibrationLive(LiveTerm):
 
     def bind(self, cols, coef):
         super().bind(cols, coef)
-        # the views the loop writes through, made once (a slice per tick would allocate)
+        self._bind_views(cols)
+
+    def _bind_views(self, cols):
+        # the views the loop reads and writes through, made once per buffer (a slice per tick
+        # would allocate): the relaxed, +1 and -1 stops, and the loop's rows of ``cols``
         k = len(STOP_WIDTHS)
         self._views = (self.s[:k], self.s[k:2 * k], self.s[2 * k:], cols[_N_BASE:_N_BASE + k], cols[_N_BASE + k:])
 
