@@ -157,6 +157,25 @@ def test_equilibrium_says_when_it_cannot_place_a_sensor_error():
         assert "4, 5, 6" in text and "cannot place" in text
 
 
+@pytest.mark.parametrize("cables", [(1, 5, 7), (2, 5, 7), (0, 3, 7)])
+def test_equilibrium_places_sensor_errors_as_a_set(cables):
+    """Offsets on three cables balance much like one on another cable (on these poses, 1, 5
+    and 7 like 3; 2, 5 and 7 like 0). A search that adds the cable explaining most first
+    takes that other cable, after which the true ones no longer pay beside it (it named
+    1, 3; 0; and 2, 3, 5). Scored as sets, the true one balances best and each of its
+    cables earns its place."""
+    g, t, P, Q, f, rng = _balanced()
+    y = f + 0.1 * rng.standard_normal(f.shape)
+    noise = np.full(g.n_cables, 0.1)
+    y[:, list(cables)] += 0.5
+    res = equilibrium_check(g, t, P, Q, y, noise)
+    assert res["holds"] and res["ratio"] < 1.3
+    assert sorted(res["sensor"]) == list(cables)
+    for c in cables:
+        assert res["sensor"][c]["mean_N"] == pytest.approx(0.5, abs=0.15)
+        assert res["sensor"][c]["p"] < 0.01
+
+
 def test_equilibrium_finds_a_force_channel_that_lags_and_how_much():
     """A reading that lags the present force by tau (the platform balances the force, the
     sensor shows the one of tau ago) breaks the balance along that cable's column; putting
