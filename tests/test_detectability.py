@@ -185,3 +185,47 @@ def test_describe_limits_words_and_order():
     assert one == ("creep (creep): not told from the baseline's recalibration below 0.07-0.1 N RMS even with a "
                    "perfect baseline (this one's model form adds nothing to it), on cables 0, 1 (the "
                    "recalibration mimics 50-80 % of its shape over this recording)")
+
+
+def test_held_out_fits_hold_what_the_screen_holds():
+    # the limits' held-out fit of the recalibration must be the screen's own: the amplitude
+    # columns held within each fold's support (Design.held), else a block whose amplitude
+    # no other block reached extrapolates here and not in the screen, and the limits claim
+    # a shape is free that the screen's recalibration absorbs
+    from cablesvc.discover.detectability import HeldOutFit, held_out_left
+    from cablesvc.discover.evidence import block_ids, loo_errors
+    from cablesvc.models.terms import Recalibration
+    from cablesvc.config.params import ModelParams
+    rob = load_robot(ROBOT)
+    p = baseline_params(rob)
+    tables = dict(p.tables)                 # a baseline whose stiffness follows the amplitude
+    tables["K1"] = (np.asarray(tables["K1"], float) * np.linspace(0.9, 1.1, len(tables["amplitudes"]))).tolist()
+    p = ModelParams(model=p.model, params=dict(p.params), options=dict(p.options), tables=tables,
+                    robot=p.robot, identification=dict(p.identification), source="<amplitude>")
+    rec = simulate_recording(ROBOT, "trajectory", None, truth=TruthConfig(effects=[], noise_std=0.1),
+                             duration=20.0, rate=100, seed=5)
+    s = build_signals(rec, rob, p)
+    train, valid, _ = split_blocks(s.t, 2.5)
+    s.train = train
+    blocks = block_ids(s.t, 1.25, train | valid)
+    nuis = Recalibration()
+    assert nuis.design(s, 2, {}).held                       # the recalibration holds some columns
+    t = s.t - s.t[0]
+    f = np.zeros((s.n, s.m))
+    f[:, 2] = -0.5 * (1.0 - np.exp(-t / 5.0))                # a settling creep
+    f[:, 5] = 0.3 * np.sin(2 * np.pi * 0.13 * t) * s.x[:, 5] / np.max(np.abs(s.x[:, 5]))
+    f[:, 3] = 0.02 * s.f0[:, 3] + 0.3                       # a stiffness and pretension error
+    got = held_out_left(s, nuis, blocks, f, [2, 3, 5])
+    assert got[3] < 1e-12                                    # the recalibration's own: nothing left
+    assert got[2] > 1e-4                                     # a settling creep is not all absorbed here
+    for c in (2, 5):
+        want = float(np.mean(np.concatenate(loo_errors(s, c, f[:, c], [nuis], [{}], blocks)) ** 2))
+        assert got[c] == pytest.approx(want, rel=1e-3)      # the same fit, up to its scaling
+    # and without the hold the two differ on this trajectory (the test can fail)
+    mask = np.zeros(s.n, bool)
+    for b in blocks:
+        mask[b] = True
+    pos = np.cumsum(mask) - 1
+    nd = nuis.design(s, 2, {})
+    free = HeldOutFit(nd.X[mask], [pos[b] for b in blocks]).left(f[np.concatenate(blocks), 2][:, None])
+    assert float(np.mean(free ** 2)) > 1.1 * got[2]

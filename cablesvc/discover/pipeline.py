@@ -867,7 +867,8 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                 "travel_probe": {str(c): v for c, v in probes.items()},
                 "model_form_excess_noise_var": model_form_excess,
                 "limits": {f"{n}@{c}": {"free": v["free"], "floor_rms_N": v["floor_rms_N"],
-                                        "limit_rms_N": v["limit_rms_N"]} for (n, c), v in limits.items()}}
+                                        "limit_rms_N": v["limit_rms_N"], "need_noise_var": v["need_noise_var"]}
+                           for (n, c), v in limits.items()}}
     return Discovery(robot=rob.name, baseline=base, signals=s, residual=r,
                      masks={"train": train, "valid": valid, "test": test}, location=loc, selection=sel,
                      final=final, full=full, findings=findings, rmse_before=rmse_b, rmse_after=rmse_a,
