@@ -339,6 +339,12 @@ def test_each_true_effect_is_set_against_the_recordings_detection_limit(robot):
     # no floor is below what the noise alone allows (gain 0.25 noise variances, all of the
     # shape free)
     assert 0.5 * 0.9 * NOISE < min(v["floor_N"].values()) < np.inf
+    # the effect's own force against the recalibration, held out, per cable of the effect,
+    # and "shown" where that reaches the screen's least gain on one of them
+    left = row["effect_left_noise_var"]
+    assert set(map(int, left)) == set(row["truth_cables"]) and all(x >= 0.0 for x in left.values())
+    assert row["shown"] == (max(left.values()) >= 0.25)
+    assert row["need_noise_var"] >= 0.25
 
 
 def test_a_drum_running_out_of_round_is_reported_as_a_residual_that_repeats_with_the_travel(robot, control, tmp_path):

@@ -236,6 +236,7 @@ class RealisticCase:
     wrench: dict[str, float]
     seconds: dict[str, float]
     clean_force: np.ndarray = field(repr=False, default=None)   # measured forces of the same run without effects, no noise
+    effect_force: np.ndarray = field(repr=False, default=None)  # what the effects add to the measured forces, no noise
     #: a single effect's RMS on each of its cables [N] (the weakest one is ``effect_rms``);
     #: empty for pairs, where the two effects' forces mix on shared cables
     effect_rms_cables: dict[int, float] = field(default_factory=dict)
@@ -396,7 +397,8 @@ def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Option
     return RealisticCase(kind=kind, names=list(names), seed=int(seed), robot=sr, calib=sr.calib,
                          baseline=sr.baseline, recording=strip_truth(rec), truth=truth, effects=effects,
                          effect_rms=rms, wrench=wr, seconds={"calibrate": t1 - t0, "simulate": t2 - t1},
-                         clean_force=base.measured, effect_rms_cables=per_cable)
+                         clean_force=base.measured, effect_force=final.measured - base.measured,
+                         effect_rms_cables=per_cable)
 
 
 # --------------------------------------------------------------------------------------
