@@ -62,6 +62,8 @@ __all__ = ["equilibrium_check"]
 SET_MAX = 4
 #: ... within this many held-out fits (fewer cables where a robot has many)
 SET_EVALS = 1200
+#: relative cut of the singular values in the sets' held-out fits (columns scaled to unit norm)
+PINV_RTOL = 1e-12
 #: whitened mean square per wrench row under which the recording's forces count as balanced
 HOLDS = 1.5
 #: corrected p-value under which a cable's sensor columns count
@@ -330,15 +332,18 @@ def equilibrium_check(geom: Any, t: np.ndarray, position: np.ndarray, orientatio
         errs: dict[tuple[int, ...], np.ndarray] = {}
 
         def err(S: tuple[int, ...]) -> np.ndarray:
-            # per block, the held-out whitened squared residual per tick and row
+            # per block, the held-out whitened squared residual per tick and row (every
+            # block's fold solved at once, columns scaled to unit norm as _solve does)
             if S not in errs:
                 ix = np.array(fixed_cols + [c for i in S for c in col[(i, "sensor")]])
-                out = np.empty(len(blocks))
-                for k in range(len(blocks)):
-                    G, h = Gb[k][np.ix_(ix, ix)], hb[k][ix]
-                    beta = _solve(Gt[np.ix_(ix, ix)] - G, ht[ix] - h)
-                    out[k] = (tb[k] - 2.0 * beta @ h + beta @ G @ beta) / size[k]
-                errs[S] = out
+                G, h = Gb[:, ix][:, :, ix], hb[:, ix]
+                A, v = Gt[np.ix_(ix, ix)][None] - G, ht[ix][None] - h
+                sc = np.sqrt(np.clip(np.diagonal(A, axis1=1, axis2=2), 0.0, None))
+                sc[sc == 0] = 1.0
+                beta = np.einsum("bpq,bq->bp", np.linalg.pinv(A / (sc[:, :, None] * sc[:, None, :]),
+                                                              rtol=PINV_RTOL), v / sc) / sc
+                errs[S] = (tb - 2.0 * np.einsum("bp,bp->b", beta, h)
+                           + np.einsum("bp,bpq,bq->b", beta, G, beta)) / size
             return errs[S]
 
         def mean(S: tuple[int, ...]) -> float:
