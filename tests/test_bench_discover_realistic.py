@@ -345,6 +345,9 @@ def test_each_true_effect_is_set_against_the_recordings_detection_limit(robot):
     assert set(map(int, left)) == set(row["truth_cables"]) and all(x >= 0.0 for x in left.values())
     assert row["shown"] == (max(left.values()) >= 0.25)
     assert row["need_noise_var"] >= 0.25
+    from cablesvc.bench.discover import _over_need
+    assert _over_need(row) == (max(left.values()) >= row["need_noise_var"])
+    assert not _over_need({"effect_left_noise_var": {}, "need_noise_var": None})
 
 
 def test_a_drum_running_out_of_round_is_reported_as_a_residual_that_repeats_with_the_travel(robot, control, tmp_path):
