@@ -35,10 +35,15 @@ along cable i's column of A^T. :func:`equilibrium_check` therefore
    does (or nothing). A lag is evidence in the dead time's own variable that no
    error of the cable model can produce: a cable law, however wrong, changes no measured
    force, and the platform balances the forces it reads;
-4. for each sensor error found, runs the selection again without that cable's sensor
+4. places the sensor errors as a set: every set of up to ``SET_MAX`` cables is scored on
+   held-out blocks beside the lags found, and the largest best set whose every cable earns
+   its place beside the others is kept, unless a smaller one balances the platform as well
+   (offsets on two or three cables can look like one on another cable, which a search
+   adding one cable at a time takes first);
+5. for each sensor error found, runs the selection again without that cable's sensor
    columns: with more cables than wrench rows, errors on other cables may balance the
    platform as well, and then the check says which (it cannot place the error);
-5. says whether equilibrium holds on the recording at all: when the whitened residual
+6. says whether equilibrium holds on the recording at all: when the whitened residual
    left is still well above 1, the measured forces do not balance for reasons no sensor
    column explains (dynamics, geometry), and a sensor error cannot be told from a cable's
    pretension or stiffness.
