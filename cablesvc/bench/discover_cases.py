@@ -236,7 +236,10 @@ class RealisticCase:
     wrench: dict[str, float]
     seconds: dict[str, float]
     clean_force: np.ndarray = field(repr=False, default=None)   # measured forces of the same run without effects, no noise
-    effect_force: np.ndarray = field(repr=False, default=None)  # what the effects add to the measured forces, no noise
+    #: what the effects leave for a perfect baseline, no noise: the measured force minus the
+    #: truth law without them on the elongation every tool computes from the recording (as
+    #: :func:`_effect_rms`; not the run without effects, whose platform stood elsewhere)
+    effect_force: np.ndarray = field(repr=False, default=None)
     #: a single effect's RMS on each of its cables [N] (the weakest one is ``effect_rms``);
     #: empty for pairs, where the two effects' forces mix on shared cables
     effect_rms_cables: dict[int, float] = field(default_factory=dict)
@@ -310,11 +313,16 @@ def _draw_effect(name: str, m: int, rng: np.random.Generator) -> tuple[tuple[int
     return cables, ref, opts
 
 
+def _effect_force(run: EquilibriumRun, sr: SimRobot, tr: _Traj) -> np.ndarray:
+    """What the effects leave for a perfect baseline (N, m) [N], as :func:`_effect_rms`."""
+    x = solve_ik(sr.geom, run.position, run.orientation).length - tr.motor_length
+    return run.measured - cable_law(sr.variant, x, 1.0 / RATE)
+
+
 def _effect_rms_cables(run: EquilibriumRun, sr: SimRobot, tr: _Traj, cables: tuple[int, ...]) -> np.ndarray:
     """What the effect leaves for a perfect baseline, as :func:`_effect_rms`, on each of
     ``cables`` [N]."""
-    x = solve_ik(sr.geom, run.position, run.orientation).length - tr.motor_length
-    d = run.measured - cable_law(sr.variant, x, 1.0 / RATE)
+    d = _effect_force(run, sr, tr)
     return np.sqrt(np.mean(d[:, list(cables)] ** 2, axis=0))
 
 
@@ -397,7 +405,7 @@ def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Option
     return RealisticCase(kind=kind, names=list(names), seed=int(seed), robot=sr, calib=sr.calib,
                          baseline=sr.baseline, recording=strip_truth(rec), truth=truth, effects=effects,
                          effect_rms=rms, wrench=wr, seconds={"calibrate": t1 - t0, "simulate": t2 - t1},
-                         clean_force=base.measured, effect_force=final.measured - base.measured,
+                         clean_force=base.measured, effect_force=_effect_force(final, sr, tr),
                          effect_rms_cables=per_cable)
 
 
