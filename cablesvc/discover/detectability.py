@@ -53,6 +53,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from cablesvc.discover.evidence import own_part
 from cablesvc.discover.screen import BlockScreen
 from cablesvc.discover.select import DesignCache
 from cablesvc.models.terms import Signals, Term
@@ -70,6 +71,26 @@ def _basis(A: np.ndarray, with_keep: bool = False):
     A = A[:, keep]
     A = A / np.linalg.norm(A, axis=0) if A.shape[1] else A
     return (A, keep) if with_keep else A
+
+
+def _block_rows(s: Signals, blocks: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The ticks in ``blocks`` (mask (n,)) and each block as indices into those ticks."""
+    mask = np.zeros(s.n, bool)
+    for b in blocks:
+        mask[b] = True
+    pos = np.cumsum(mask) - 1
+    return mask, [pos[np.asarray(b, int)] for b in blocks]
+
+
+def _nuisance_fit(s: Signals, nuisance: Term, c: int, mask: np.ndarray, local: list[np.ndarray],
+                  cache: DesignCache) -> "HeldOutFit":
+    """The held-out fit of ``nuisance``'s columns on cable ``c`` (its fixed part as one more
+    column), on the masked ticks, its held columns held as the screen holds them."""
+    nd = cache.get(nuisance, s, c, {})
+    N = nd.X[mask]
+    if nd.fixed is not None:
+        N = np.column_stack([N, nd.fixed[mask]])
+    return HeldOutFit(N, local, _held(nd))
 
 
 def _held(design: Any) -> np.ndarray:
@@ -120,15 +141,9 @@ class HeldOutFit:
         Gb = [Xo[a:b].T @ Xo[a:b] for a, b in zip(self.edges[:-1], self.edges[1:])]
         gb = [Xo[a:b].T @ Xh[a:b] for a, b in zip(self.edges[:-1], self.edges[1:])]
         Gt, gt = sum(Gb), sum(gb)
-        diag = np.diag_indices(Xo.shape[1])
         out = []
         for k, (a, b) in enumerate(zip(self.edges[:-1], self.edges[1:])):
-            if Xo.shape[1]:
-                G = Gt - Gb[k]
-                G[diag] += 1e-9 * float(np.mean(G[diag])) + 1e-300
-                own = Xh - Xo @ np.linalg.solve(G, gt - gb[k])
-            else:
-                own = Xh
+            own = own_part(Xo, Xh, Gt - Gb[k], gt - gb[k])
             fold = np.ones(N.shape[0], bool)
             fold[a:b] = False
             lo, hi = own[fold].min(axis=0), own[fold].max(axis=0)
@@ -227,21 +242,11 @@ def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list
         return out
     cache = cache if cache is not None else DesignCache()
     floor = screen.required_gain(0.0)               # a perfect baseline
-    mask = np.zeros(s.n, bool)
-    for b in blocks:
-        mask[b] = True
-    local = []                      # the blocks as indices into the masked ticks
-    pos = np.cumsum(mask) - 1
-    for b in blocks:
-        local.append(pos[np.asarray(b, int)])
+    mask, local = _block_rows(s, blocks)
 
     for c in range(s.m):
         need = screen.required_gain(float(ex[c]), typical)
-        nd = cache.get(nuisance, s, c, {})
-        N = nd.X[mask]
-        if nd.fixed is not None:
-            N = np.column_stack([N, nd.fixed[mask]])
-        fitter = HeldOutFit(N, local, _held(nd))
+        fitter = _nuisance_fit(s, nuisance, c, mask, local, cache)
         for t in terms:
             if not t.applies(s, c):
                 continue
@@ -275,19 +280,11 @@ def held_out_left(s: Signals, nuisance: Term, blocks: list[np.ndarray], force: n
     if not blocks:
         return {int(c): 0.0 for c in cables}
     cache = cache if cache is not None else DesignCache()
-    mask = np.zeros(s.n, bool)
-    for b in blocks:
-        mask[b] = True
-    pos = np.cumsum(mask) - 1
-    local = [pos[np.asarray(b, int)] for b in blocks]
+    mask, local = _block_rows(s, blocks)
     order = np.concatenate([np.asarray(b, int) for b in blocks])
     out = {}
     for c in cables:
-        nd = cache.get(nuisance, s, c, {})
-        N = nd.X[mask]
-        if nd.fixed is not None:
-            N = np.column_stack([N, nd.fixed[mask]])
-        R = HeldOutFit(N, local, _held(nd)).left(np.asarray(force, float)[order, c][:, None])
+        R = _nuisance_fit(s, nuisance, c, mask, local, cache).left(np.asarray(force, float)[order, c][:, None])
         out[int(c)] = float(np.mean(R * R))
     return out
 

@@ -72,6 +72,19 @@ def loo_errors(s: Signals, c: int, r: np.ndarray, terms: list[Term], hypers: lis
     return out
 
 
+def own_part(Xo: np.ndarray, Xh: np.ndarray, G: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """The part of the held columns ``Xh`` (n, h) that the other columns ``Xo`` (n, q)
+    cannot express, fitted on a fold's ticks: ``G`` = Xo^T Xo and ``g`` = Xo^T Xh over them
+    (``G`` is changed). The columns are scaled (unit RMS or norm): a ridge of 1e-9 of the
+    mean diagonal only settles the exact collinearities (the span is what matters, not the
+    split). What :class:`_Held` and the detection limits' held-out fit hold."""
+    if not Xo.shape[1]:
+        return Xh
+    diag = np.diag_indices(Xo.shape[1])
+    G[diag] += 1e-9 * float(np.mean(G[diag])) + 1e-300
+    return Xh - Xo @ np.linalg.solve(G, g)
+
+
 class _Held:
     """The held columns of ``designs`` (``Design.held``) on each fold of a
     leave-one-block-out fit: :meth:`change` is the change of the prediction on the block
@@ -101,18 +114,9 @@ class _Held:
         self.G_b = [self.Xo[b].T @ self.Xo[b] for b in blocks]
         self.g_b = [self.Xo[b].T @ self.Xh[b] for b in blocks]
         self.G, self.g = sum(self.G_b), sum(self.g_b)
-        self.diag = np.diag_indices(self.Xo.shape[1])
 
     def change(self, plist: list[np.ndarray], i: int, mask: np.ndarray, b: np.ndarray) -> np.ndarray:
-        if self.Xo.shape[1]:
-            G = self.G - self.G_b[i]
-            # the columns are scaled to unit RMS: a ridge of 1e-9 of the mean diagonal only
-            # settles the exact collinearities (the span is what matters, not the split)
-            G[self.diag] += 1e-9 * float(np.mean(G[self.diag])) + 1e-300
-            beta = np.linalg.solve(G, self.g - self.g_b[i])
-            own = self.Xh - self.Xo @ beta
-        else:
-            own = self.Xh
+        own = own_part(self.Xo, self.Xh, self.G - self.G_b[i], self.g - self.g_b[i])
         lo, hi = own[mask].min(axis=0), own[mask].max(axis=0)
         ob = own[b]
         coef = np.array([plist[k][j] for k, j in self.cols])
