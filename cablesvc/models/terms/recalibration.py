@@ -184,15 +184,21 @@ class Recalibration(Term):
     #: fit holds a held column within its own fitted ticks' range: Design.held)
     held = _HELD + INITIAL
 
-    def __init__(self, stops: bool = False):
+    def __init__(self, stops: bool = False, initial: bool = True):
         #: whether the fit uses the loop, its stops and their state at the recording's start
         #: (False, the default: their columns are dropped, held at 0); the live form runs
         #: the loop wherever the file gives it a coefficient
         self.stops = bool(stops)
+        #: with the stops, whether the loop's state at the recording's start is fitted too
+        #: (offline only: the loop alone is the model-form alternative a term named where the
+        #: gate left the loop out must also beat, :class:`cablesvc.discover.screen.BlockScreen`)
+        self.initial = bool(initial)
 
     @property
     def design_key(self) -> str:
-        return f"{self.name}+loop" if self.stops else self.name
+        if not self.stops:
+            return self.name
+        return f"{self.name}+loop" if self.initial else f"{self.name}+stops"
 
     def refs(self, s, c, h):
         R = {**_backbone_refs(s, c), "A_mean": s.train_mean(s.amplitude[:, c]),
@@ -248,6 +254,8 @@ class Recalibration(Term):
         d = super().design(s, c, h)
         if not self.stops:
             d = d.without(LOOP)
+        elif not self.initial:
+            d = d.without(INITIAL)
         return d if d.refs.get("has_A", 1.0) else d.without(_HELD)
 
     def evidence(self, s, c, h):
