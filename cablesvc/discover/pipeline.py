@@ -297,17 +297,17 @@ class Discovery:
                          f"block-level p < {lp['alpha']:g}): "
                          "it is part of the recalibration on every cable, the baseline's model form, not a "
                          "concealed effect")
-        refused: dict[str, list[int]] = {}
-        for k in self.options.get("loop_refused") or {}:
+        refused: dict[tuple[str, str], list[int]] = {}
+        for k, v in (self.options.get("model_form_refused") or {}).items():
             n, c = k.split("@")
-            refused.setdefault(n, []).append(int(c))
-        for n, cs in refused.items():
-            ps = ", ".join(f"{self.options['loop_refused'][f'{n}@{c}']['p']:.2g}" for c in cs)
+            refused.setdefault((n, v.get("alternative_words", v.get("alternative", ""))), []).append(int(c))
+        for (n, words), cs in refused.items():
+            ref = self.options["model_form_refused"]
+            ps = ", ".join(f"{ref[f'{n}@{c}']['p']:.2g}" for c in cs)
             lines.append(f"not named: {n} on cable{'s' if len(cs) > 1 else ''} {', '.join(map(str, cs))}; it passed "
-                         "the screen, but the rope's own rate-independent loop (Prandtl-Ishlinskii stops in the "
-                         "recalibration: the baseline's model form, not a concealed effect) explains "
-                         f"{'those cables' if len(cs) > 1 else 'that cable'} about as well held out "
-                         f"(the term better at block-level p = {ps}, not below {self.options['alpha']:g})")
+                         f"the screen, but the recalibration with {words} (the baseline's model form, not a "
+                         f"concealed effect) explains {'those cables' if len(cs) > 1 else 'that cable'} about as "
+                         f"well held out (the term better at block-level p = {ps}, not below {self.options['alpha']:g})")
         for c in rc.get("cables", []):
             d = rc["per_cable"][str(c)]
             lines.append(f"the baseline is off by {d['rms_N']:.2g} N RMS on cable {c} (block-level p = {d['p']:.2g}); "
@@ -397,10 +397,10 @@ class Discovery:
             "verdict": self.verdict(),
             "recalibration": self.recalibration,
             "unexplained": self.unexplained,
-            # terms that passed the screen but do no better than the rope's own loop would
-            # in their place, and those that do (BlockScreen step 4)
-            "loop_refused": self.options.get("loop_refused", {}),
-            "loop_confirmed": self.options.get("loop_confirmed", {}),
+            # terms that passed the screen but do no better than a model-form alternative of
+            # the recalibration would in their place, and those that do (BlockScreen step 4)
+            "model_form_refused": self.options.get("model_form_refused", {}),
+            "model_form_confirmed": self.options.get("model_form_confirmed", {}),
             "equilibrium": self.equilibrium,
             "detection_limits": self.detection,
             "mode": self.options.get("mode", "exact"),
@@ -738,6 +738,11 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     # stops without the loop's state at the recording's start, which a creep's settling
     # shares by construction; BlockScreen's step 4)
     alternatives = [] if loop["used"] else [Recalibration(stops=True, initial=False)]
+    # ... and than the baseline's own damping law with a more rate-dependent exponent would:
+    # the recalibration's exponents (0, 0.25) stay well below a viscous force's 1 so that a
+    # Kelvin-Voigt damper keeps a part of its own, and a rope whose damping is somewhat
+    # more rate-dependent than that is model form, not a viscous effect
+    alternatives.append(Recalibration(stops=loop["used"], rate_exponents=(0.0, 0.5)))
     sel = screen.select(s, r, cands, train, valid, noise=noise, base=[nuis], cache=cache, block=block / 2.0,
                         evidence=outside, alternatives=alternatives)
     fitmask = train | valid
@@ -883,8 +888,8 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     detection = describe_limits(limits, skip=skip, labels={t.name: t.label for t in cands})
     sel_info = {"tests": {f"{n}@{c}": dict(v) for (n, c), v in tests.items()},
                 "joint_tests": {f"{n}@{c}": dict(v) for (n, c), v in sel.joint.items()}, "tries": tries,
-                "loop_confirmed": {f"{n}@{c}": dict(v) for (n, c), v in sel.confirmed.items()},
-                "loop_refused": {f"{n}@{c}": dict(v) for (n, c), v in sel.refused.items()},
+                "model_form_confirmed": {f"{n}@{c}": dict(v) for (n, c), v in sel.confirmed.items()},
+                "model_form_refused": {f"{n}@{c}": dict(v) for (n, c), v in sel.refused.items()},
                 "share_min": screen.share_min, "gain_min": screen.gain_min,
                 "unexplained_floor_noise_var": floor, "typical_excess_noise_var": typical,
                 "travel_probe": {str(c): v for c, v in probes.items()},

@@ -106,7 +106,12 @@ and a term there can explain 90 % of what the recalibration without the loop lea
    which has no such loop, the terms it was tried on did better than the stops nearly
    everywhere (docs/discovery.md, "A term the rope's own loop explains as well"). The stops
    go in without the loop's state at the recording's start, which a creep's settling shares
-   by construction: a term must beat the loop, not the unknown start of a loop.
+   by construction: a term must beat the loop, not the unknown start of a loop. A second
+   alternative is always tried: the recalibration whose damping columns have the rate
+   exponents 0 and 0.5 instead of 0 and 0.25 (the baseline's own damping law, somewhat
+   more rate-dependent). On the default truth it refused the false viscous forces of seed
+   97531's controls (3 -> 0 of 40) and cost one viscous single of 40 on 8675309
+   (docs/discovery.md, "A damping more rate-dependent than the recalibration's").
 
 The price, said plainly: an effect that the recalibration can mimic over the recording
 (sag, and much of creep over a 30 s recording: a tension-dependent stiffness and a slow
@@ -407,6 +412,8 @@ class BlockScreen:
                     e_term = loo_errors(s, c, r[:, c], base + kept[c], hb + hk[c], blocks, cache)
                     vs = block_gain_test(e_alt, e_term, noise[c])
                     vs["alternative"] = alt.design_key
+                    vs["alternative_words"] = (alt.describe_alternative() if hasattr(alt, "describe_alternative")
+                                               else alt.design_key)
                     vs["passed"] = bool(vs["p"] < self.alpha)
                     (confirmed if vs["passed"] else refused)[(t.name, c)] = vs
                     if not vs["passed"]:

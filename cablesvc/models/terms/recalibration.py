@@ -5,6 +5,8 @@ and the baseline's hysteretic part it is built on (:func:`hysteretic_part`).
 
 from __future__ import annotations
 
+import dataclasses
+
 from typing import Any
 
 import numpy as np
@@ -184,7 +186,7 @@ class Recalibration(Term):
     #: fit holds a held column within its own fitted ticks' range: Design.held)
     held = _HELD + INITIAL
 
-    def __init__(self, stops: bool = False, initial: bool = True):
+    def __init__(self, stops: bool = False, initial: bool = True, rate_exponents: tuple = RATE_EXPONENTS):
         #: whether the fit uses the loop, its stops and their state at the recording's start
         #: (False, the default: their columns are dropped, held at 0); the live form runs
         #: the loop wherever the file gives it a coefficient
@@ -193,12 +195,33 @@ class Recalibration(Term):
         #: (offline only: the loop alone is the model-form alternative a term named where the
         #: gate left the loop out must also beat, :class:`cablesvc.discover.screen.BlockScreen`)
         self.initial = bool(initial)
+        #: the damping columns' rate exponents (offline only: the baseline's own damping law
+        #: with another exponent is a model-form alternative a named term must also beat;
+        #: the file's law and the live form keep RATE_EXPONENTS)
+        self.rate_exponents = tuple(float(a) for a in rate_exponents)
+        if len(self.rate_exponents) != len(RATE_EXPONENTS):
+            raise ValueError(f"rate_exponents: {len(RATE_EXPONENTS)} exponents, got {rate_exponents!r}")
 
     @property
     def design_key(self) -> str:
-        if not self.stops:
-            return self.name
-        return f"{self.name}+loop" if self.initial else f"{self.name}+stops"
+        key = self.name
+        if self.stops:
+            key += "+loop" if self.initial else "+stops"
+        if self.rate_exponents != RATE_EXPONENTS:
+            key += "+rate" + ",".join(f"{a:g}" for a in self.rate_exponents)
+        return key
+
+    def describe_alternative(self) -> str:
+        """What this recalibration holds beyond the nuisance's default, in words (a model-form
+        alternative's, :meth:`cablesvc.discover.screen.BlockScreen.select`)."""
+        parts = []
+        if self.stops:
+            parts.append("the rope's own rate-independent loop (Prandtl-Ishlinskii stops"
+                         + (" and their state at the start)" if self.initial else ")"))
+        if self.rate_exponents != RATE_EXPONENTS:
+            parts.append("the baseline's own damping law (002 eq 8) with rate exponents "
+                         + ", ".join(f"{a:g}" for a in self.rate_exponents))
+        return " and ".join(parts) or "the baseline's recalibration"
 
     def refs(self, s, c, h):
         R = {**_backbone_refs(s, c), "A_mean": s.train_mean(s.amplitude[:, c]),
@@ -256,6 +279,15 @@ class Recalibration(Term):
             d = d.without(LOOP)
         elif not self.initial:
             d = d.without(INITIAL)
+        if self.rate_exponents != RATE_EXPONENTS:
+            X = d.X.copy()
+            env = np.minimum(envelope(s.x[:, c]), d.refs["E_hi"])
+            col = np.empty(s.n)
+            for a, n in zip(self.rate_exponents, DAMPING_LEVELS):
+                rate_power(s.v[:, c], a, col)
+                X[:, d.names.index(n)] = col
+                X[:, d.names.index(f"{n}_e")] = col * env
+            d = dataclasses.replace(d, X=X)
         return d if d.refs.get("has_A", 1.0) else d.without(_HELD)
 
     def evidence(self, s, c, h):
