@@ -305,9 +305,10 @@ class Discovery:
             ref = self.options["model_form_refused"]
             ps = ", ".join(f"{ref[f'{n}@{c}']['p']:.2g}" for c in cs)
             lines.append(f"not named: {n} on cable{'s' if len(cs) > 1 else ''} {', '.join(map(str, cs))}; it passed "
-                         f"the screen, but the recalibration with {words} (the baseline's model form, not a "
-                         f"concealed effect) explains {'those cables' if len(cs) > 1 else 'that cable'} about as "
-                         f"well held out (the term better at block-level p = {ps}, not below {self.options['alpha']:g})")
+                         f"the screen, but the recalibration with {words} explains "
+                         f"{'those cables' if len(cs) > 1 else 'that cable'} about as well held out (the term better "
+                         f"at block-level p = {ps}, not below {self.options['alpha']:g}): the baseline's model form, "
+                         "not a concealed effect")
         for c in rc.get("cables", []):
             d = rc["per_cable"][str(c)]
             lines.append(f"the baseline is off by {d['rms_N']:.2g} N RMS on cable {c} (block-level p = {d['p']:.2g}); "
