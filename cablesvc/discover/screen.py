@@ -323,15 +323,19 @@ class BlockScreen:
 
         e_kept: dict[tuple[int, tuple[str, ...]], list[np.ndarray]] = {}
 
-        def beside(n: str, c: int) -> tuple[dict[str, Any], dict[str, float]]:
-            # term n tested against what the terms cable c keeps leave (held-out blocks;
-            # those errors computed once per set of kept terms)
-            if not kept[c]:
-                return dict(tests[(n, c)]), hyper[(n, c)]
+        def kept_errors(c: int) -> list[np.ndarray]:
+            # what the terms cable c keeps leave beside the nuisance (held-out blocks),
+            # computed once per set of kept terms
             now = (c, tuple(t.name for t in kept[c]))
             if now not in e_kept:
                 e_kept[now] = loo_errors(s, c, r[:, c], base + kept[c], hb + hk[c], blocks, cache)
-            e0 = e_kept[now]
+            return e_kept[now]
+
+        def beside(n: str, c: int) -> tuple[dict[str, Any], dict[str, float]]:
+            # term n tested against what the terms cable c keeps leave
+            if not kept[c]:
+                return dict(tests[(n, c)]), hyper[(n, c)]
+            e0 = kept_errors(c)
             f = fit_terms(s, c, r[:, c], base + kept[c] + [by_name[n]], train, hypers=hb + hk[c] + [None],
                           cache=cache)
             h = f.hyper[n]
@@ -409,8 +413,7 @@ class BlockScreen:
                     i = kept[c].index(t)
                     others, ho = kept[c][:i] + kept[c][i + 1:], hk[c][:i] + hk[c][i + 1:]
                     e_alt = loo_errors(s, c, r[:, c], [alt] + others, [{}] + ho, blocks, cache)
-                    e_term = loo_errors(s, c, r[:, c], base + kept[c], hb + hk[c], blocks, cache)
-                    vs = block_gain_test(e_alt, e_term, noise[c])
+                    vs = block_gain_test(e_alt, kept_errors(c), noise[c])
                     vs["alternative"] = alt.design_key
                     vs["alternative_words"] = (alt.describe_alternative() if hasattr(alt, "describe_alternative")
                                                else alt.design_key)

@@ -5,8 +5,6 @@ and the baseline's hysteretic part it is built on (:func:`hysteretic_part`).
 
 from __future__ import annotations
 
-import dataclasses
-
 from typing import Any
 
 import numpy as np
@@ -233,20 +231,21 @@ class Recalibration(Term):
         return R
 
     def columns(self, g, R, h, out):
-        self.law(g, R, h, envelope(g.x), out)
+        self.law(g, R, h, envelope(g.x), out, self.rate_exponents)
         k = len(STOP_WIDTHS)
         stop_columns(g.x, np.asarray(STOP_WIDTHS), out[_N_BASE:_N_BASE + k])
         initial_state_columns(g.x, np.asarray(STOP_WIDTHS), out[_N_BASE + k:])
 
     @staticmethod
-    def law(g, R, h, env, out):
+    def law(g, R, h, env, out, rate_exponents=RATE_EXPONENTS):
         """The columns before the stops (the first ``_N_BASE`` of ``out``) from the signals
         ``g`` and the elongation's envelope ``env`` [mm] (:func:`envelope` offline,
         :class:`_RecalibrationLive` live), which is clamped at ``E_hi`` in place: callers pass
         an array of their own. The loop's columns, which carry a state, are written by the
         caller (:func:`~cablesvc.models.play.stop_columns` and
         :func:`~cablesvc.models.play.initial_state_columns` offline,
-        :class:`~cablesvc.models.play.LiveStops` live)."""
+        :class:`~cablesvc.models.play.LiveStops` live). ``rate_exponents``: the damping
+        columns' exponents (another pair only for an offline model-form alternative)."""
         o, ks, ah, c2 = out[:4]
         o.fill(1.0)
         np.copyto(ks, g.f0)
@@ -259,7 +258,7 @@ class Recalibration(Term):
             np.minimum(col, R[f"hi_{n}"], out=col)
         np.minimum(env, R["E_hi"], out=env)              # the level grows no further than fitted
         k = len(RATE_EXPONENTS)
-        for a, col, col_e in zip(RATE_EXPONENTS, out[7:7 + k], out[7 + k:_N_BASE]):
+        for a, col, col_e in zip(rate_exponents, out[7:7 + k], out[7 + k:_N_BASE]):
             rate_power(g.v, a, col)                      # 002 eq 8's damping rate law, its level free
             np.multiply(col, env, out=col_e)             # ... and its level growing with the envelope
 
@@ -279,15 +278,6 @@ class Recalibration(Term):
             d = d.without(LOOP)
         elif not self.initial:
             d = d.without(INITIAL)
-        if self.rate_exponents != RATE_EXPONENTS:
-            X = d.X.copy()
-            env = np.minimum(envelope(s.x[:, c]), d.refs["E_hi"])
-            col = np.empty(s.n)
-            for a, n in zip(self.rate_exponents, DAMPING_LEVELS):
-                rate_power(s.v[:, c], a, col)
-                X[:, d.names.index(n)] = col
-                X[:, d.names.index(f"{n}_e")] = col * env
-            d = dataclasses.replace(d, X=X)
         return d if d.refs.get("has_A", 1.0) else d.without(_HELD)
 
     def evidence(self, s, c, h):
