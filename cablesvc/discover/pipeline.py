@@ -744,6 +744,10 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     # Kelvin-Voigt damper keeps a part of its own, and a rope whose damping is somewhat
     # more rate-dependent than that is model form, not a viscous effect
     alternatives.append(Recalibration(stops=loop["used"], rate_exponents=(0.0, 0.5)))
+    # ... and than the rope's loop with a part whose height grows with the force (the
+    # friction between strands grows with the tension): a pulley's bearing friction is a
+    # force-proportional loop too
+    alternatives.append(Recalibration(stops=True, initial=loop["used"], force_loop=True))
     sel = screen.select(s, r, cands, train, valid, noise=noise, base=[nuis], cache=cache, block=block / 2.0,
                         evidence=outside, alternatives=alternatives)
     fitmask = train | valid

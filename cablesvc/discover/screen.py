@@ -446,6 +446,7 @@ class BlockScreen:
                     vs["passed"] = bool(vs["p"] < self.alpha)
                     (confirmed if vs["passed"] else refused)[(t.name, c)] = vs
                     if not vs["passed"]:
+                        confirmed.pop((t.name, c), None)     # an earlier alternative's
                         del kept[c][i], hk[c][i]
                         steps[t.name].remove(c)
                         if not steps[t.name]:

@@ -71,6 +71,8 @@ STOPS = tuple(f"c_s{round(w * 1e4):02d}" for w in STOP_WIDTHS)
 INITIAL = tuple(f"c_i{round(w * 1e4):02d}" for w in STOP_WIDTHS)
 #: the loop's parameters: its stops and their initial state, used together or not at all
 LOOP = STOPS + INITIAL
+#: the loop's stops scaled by the force (offline only: a model-form alternative)
+FORCE_LOOP = tuple(f"c_f{round(w * 1e4):02d}" for w in STOP_WIDTHS)
 _N_BASE = 7 + 2 * len(RATE_EXPONENTS)               # the columns before the stops
 
 
@@ -184,7 +186,8 @@ class Recalibration(Term):
     #: fit holds a held column within its own fitted ticks' range: Design.held)
     held = _HELD + INITIAL
 
-    def __init__(self, stops: bool = False, initial: bool = True, rate_exponents: tuple = RATE_EXPONENTS):
+    def __init__(self, stops: bool = False, initial: bool = True, rate_exponents: tuple = RATE_EXPONENTS,
+                 force_loop: bool = False):
         #: whether the fit uses the loop, its stops and their state at the recording's start
         #: (False, the default: their columns are dropped, held at 0); the live form runs
         #: the loop wherever the file gives it a coefficient
@@ -199,6 +202,20 @@ class Recalibration(Term):
         self.rate_exponents = tuple(float(a) for a in rate_exponents)
         if len(self.rate_exponents) != len(RATE_EXPONENTS):
             raise ValueError(f"rate_exponents: {len(RATE_EXPONENTS)} exponents, got {rate_exponents!r}")
+        #: with the stops, whether the loop also has a part whose height grows with the force
+        #: (the stops times f0 / mean f0 on the training ticks, c_fr [N at the mean force]):
+        #: the friction between a rope's strands grows with the contact pressure, that is
+        #: with the tension. Offline only, as a model-form alternative a named term must also
+        #: beat (:class:`cablesvc.discover.screen.BlockScreen`, step 4): a pulley's bearing
+        #: friction is a force-proportional loop too, and on the Bouc-Wen truth the
+        #: recalibration's stops left one for it to fit on controls. The file and the live
+        #: form have no such columns
+        self.force_loop = bool(force_loop)
+        if self.force_loop and not self.stops:
+            raise ValueError("force_loop needs stops=True (it scales the loop's stops)")
+        if self.force_loop:
+            self.params = Recalibration.params + FORCE_LOOP
+            self.units = Recalibration.units + tuple("N" for _ in FORCE_LOOP)
 
     @property
     def design_key(self) -> str:
@@ -207,6 +224,8 @@ class Recalibration(Term):
             key += "+loop" if self.initial else "+stops"
         if self.rate_exponents != RATE_EXPONENTS:
             key += "+rate" + ",".join(f"{a:g}" for a in self.rate_exponents)
+        if self.force_loop:
+            key += "+force"
         return key
 
     def describe_alternative(self) -> str:
@@ -215,7 +234,8 @@ class Recalibration(Term):
         parts = []
         if self.stops:
             parts.append("the rope's own rate-independent loop (Prandtl-Ishlinskii stops"
-                         + (" and their state at the start)" if self.initial else ")"))
+                         + (" and their state at the start" if self.initial else "")
+                         + (", with a part growing with the force)" if self.force_loop else ")"))
         if self.rate_exponents != RATE_EXPONENTS:
             parts.append("the baseline's own damping law (002 eq 8) with rate exponents "
                          + ", ".join(f"{a:g}" for a in self.rate_exponents))
@@ -224,6 +244,8 @@ class Recalibration(Term):
     def refs(self, s, c, h):
         R = {**_backbone_refs(s, c), "A_mean": s.train_mean(s.amplitude[:, c]),
              "has_A": float(amplitude_varies(s, c)), "E_hi": _largest(envelope(s.x[:, c]), s.train)}
+        if self.force_loop:
+            R["f_mean"] = max(abs(s.train_mean(s.f0[:, c])), 1.0)
         amp = np.empty((len(_HELD), s.n))
         _AMPLITUDE.columns(cable_view(s, c), R, h, amp)
         for n, v in zip(_HELD, amp):
@@ -234,7 +256,9 @@ class Recalibration(Term):
         self.law(g, R, h, envelope(g.x), out, self.rate_exponents)
         k = len(STOP_WIDTHS)
         stop_columns(g.x, np.asarray(STOP_WIDTHS), out[_N_BASE:_N_BASE + k])
-        initial_state_columns(g.x, np.asarray(STOP_WIDTHS), out[_N_BASE + k:])
+        initial_state_columns(g.x, np.asarray(STOP_WIDTHS), out[_N_BASE + k:_N_BASE + 2 * k])
+        if self.force_loop:                              # the stops times f0 / mean f0
+            np.multiply(out[_N_BASE:_N_BASE + k], g.f0 / R["f_mean"], out=out[_N_BASE + 2 * k:])
 
     @staticmethod
     def law(g, R, h, env, out, rate_exponents=RATE_EXPONENTS):
