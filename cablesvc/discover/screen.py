@@ -114,7 +114,11 @@ and a term there can explain 90 % of what the recalibration without the loop lea
    exponents 0 and 0.5 instead of 0 and 0.25 (the baseline's own damping law, somewhat
    more rate-dependent). On the default truth it refused the false viscous forces of seed
    97531's controls (3 -> 0 of 40) and cost one viscous single of 40 on 8675309
-   (docs/discovery.md, "A damping more rate-dependent than the recalibration's").
+   (docs/discovery.md, "A damping more rate-dependent than the recalibration's"). A third
+   is the recalibration with the loop's stops and a part of them growing with the force
+   (``Recalibration(force_loop=True)``): the friction between a rope's strands grows with
+   the tension, and a pulley's bearing friction is a force-proportional loop too
+   (docs/discovery.md, "A loop that grows with the force").
 
 The price, said plainly: an effect that the recalibration can mimic over the recording
 (sag, and much of creep over a 30 s recording: a tension-dependent stiffness and a slow
