@@ -788,3 +788,7 @@ def test_the_force_scaled_loop_is_the_stops_times_the_force_over_its_mean():
         np.testing.assert_allclose(b.X[:, b.names.index(fl)], a.X[:, a.names.index(st)] * s.f0[:, 2] / f_mean,
                                    rtol=1e-12, atol=1e-12)
     assert "growing with the force" in forced.describe_alternative()
+    # it confronts only the terms whose force follows the direction of motion (a loop)
+    from cablesvc.models.terms import LIBRARY
+    assert {n for n, t in LIBRARY.items() if forced.confronts(t)} == {"pulley", "viscous"}
+    assert all(plain.confronts(t) for t in LIBRARY.values())

@@ -439,7 +439,8 @@ class BlockScreen:
         confirmed: dict[tuple[str, int], dict[str, Any]] = {}
         for alt in alternatives or []:
             for c in range(m):
-                for t in [u for u in kept[c] if (u.name, c) not in evidence]:
+                for t in [u for u in kept[c] if (u.name, c) not in evidence
+                          and (not hasattr(alt, "confronts") or alt.confronts(u))]:
                     i = kept[c].index(t)
                     others, ho = kept[c][:i] + kept[c][i + 1:], hk[c][:i] + hk[c][i + 1:]
                     e_alt = loo_errors(s, c, r[:, c], [alt] + others, [{}] + ho, blocks, cache)

@@ -112,6 +112,11 @@ class Term:
     #: imperfect baseline these are inside its recalibration nuisance
     #: (:mod:`cablesvc.discover.nuisance`), not concealed effects
     model_form: bool = False
+    #: True for a term whose force takes the sign of the direction of motion, a loop in
+    #: force against elongation (pulley friction, viscous damping): a rope's own friction
+    #: loop draws the same shape, and such a term must also beat the loop that grows with
+    #: the force (``Recalibration.confronts``)
+    follows_direction: bool = False
     #: True for a term that delays the elongation by its hyper-parameter ``tau``: the
     #: other terms on the cable are then built on the delayed signals (:meth:`Signals.delayed`)
     delays_input: bool = False

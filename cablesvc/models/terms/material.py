@@ -43,6 +43,7 @@ class Viscous(Term):
     params = ("c_v",)
     units = ("N s/m",)
     lower = (0.0,)
+    follows_direction = True
 
     def columns(self, g, R, h, out):
         np.copyto(out[0], g.v)

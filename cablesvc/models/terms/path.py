@@ -39,6 +39,7 @@ class PulleyFriction(Term):
     ref_names = ("alpha_mean",)
     n_hyper = 1
     nuisance = ("k0",)
+    follows_direction = True
 
     def applies(self, s, c):
         return bool(s.has_pulley[c]) and float(np.max(s.wrap[:, c])) > 1e-6

@@ -228,6 +228,17 @@ class Recalibration(Term):
             key += "+force"
         return key
 
+    def confronts(self, term: Term) -> bool:
+        """Whether this recalibration, as a model-form alternative, is tried in the place of
+        ``term`` (:class:`cablesvc.discover.screen.BlockScreen`, step 4): every term, except
+        that the loop growing with the force only confronts the terms whose force follows
+        the direction of motion (``Term.follows_direction``: a loop, as it is). Tried on
+        every term, it refused a true creep of the twin (a 20 s recording, cable 2: the term
+        better by 5.6 noise variances, p = 0.09; its 3 mm stop times the force is nearly the
+        elongation times the force, which follows a slow drift too; docs/discovery.md, "A
+        loop that grows with the force")."""
+        return not self.force_loop or bool(getattr(term, "follows_direction", False))
+
     def describe_alternative(self) -> str:
         """What this recalibration holds beyond the nuisance's default, in words (a model-form
         alternative's, :meth:`cablesvc.discover.screen.BlockScreen.select`)."""
