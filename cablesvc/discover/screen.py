@@ -117,8 +117,10 @@ and a term there can explain 90 % of what the recalibration without the loop lea
    (docs/discovery.md, "A damping more rate-dependent than the recalibration's"). A third
    is the recalibration with the loop's stops and a part of them growing with the force
    (``Recalibration(force_loop=True)``): the friction between a rope's strands grows with
-   the tension, and a pulley's bearing friction is a force-proportional loop too
-   (docs/discovery.md, "A loop that grows with the force").
+   the tension, and a pulley's bearing friction is a force-proportional loop too. It is
+   tried only in the place of terms whose force follows the direction of motion (pulley
+   friction, viscous damping: ``Term.follows_direction``); in the place of every term it
+   also took a true creep (docs/discovery.md, "A loop that grows with the force").
 
 The price, said plainly: an effect that the recalibration can mimic over the recording
 (sag, and much of creep over a 30 s recording: a tension-dependent stiffness and a slow
