@@ -274,10 +274,11 @@ class BlockScreen:
         what it is ({"source", "p", ...}); they pass without the share and block tests, are
         still tested and recorded like the others, and go into the cable's model.
         ``alternatives``: other nuisances of the baseline's own family (the recalibration
-        with the rate-independent loop, where the robot-wide gate left it out), each tried
-        in place of ``base`` and the term on the cable of every term kept: a term stays
-        named only where its cable's model with it does significantly better on held-out
-        blocks than with each alternative instead (step 4, below)."""
+        with the rate-independent loop where the robot-wide gate left it out, with a more
+        rate-dependent damping law, with a loop growing with the force), each tried in place
+        of ``base`` and the term on the cable of every term kept that it ``confronts``: a
+        term stays named only where its cable's model with it does significantly better on
+        held-out blocks than with each alternative instead (step 4, below)."""
         evidence = dict(evidence or {})
         base = list(base or [])
         m = s.m

@@ -237,7 +237,7 @@ class Recalibration(Term):
         better by 5.6 noise variances, p = 0.09; its 3 mm stop times the force is nearly the
         elongation times the force, which follows a slow drift too; docs/discovery.md, "A
         loop that grows with the force")."""
-        return not self.force_loop or bool(getattr(term, "follows_direction", False))
+        return not self.force_loop or term.follows_direction
 
     def describe_alternative(self) -> str:
         """What this recalibration holds beyond the nuisance's default, in words (a model-form
