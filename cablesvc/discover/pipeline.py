@@ -748,6 +748,10 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     # friction between strands grows with the tension): a pulley's bearing friction is a
     # force-proportional loop too
     alternatives.append(Recalibration(stops=True, initial=loop["used"], force_loop=True))
+    # ... and than the rope's own viscoelastic relaxation (Maxwell branches of seconds): a
+    # force that follows a slow course, as a temperature drift's does, may be the rope
+    # relaxing after the trajectory's slow moves
+    alternatives.append(Recalibration(stops=loop["used"], relax=True))
     sel = screen.select(s, r, cands, train, valid, noise=noise, base=[nuis], cache=cache, block=block / 2.0,
                         evidence=outside, alternatives=alternatives)
     fitmask = train | valid

@@ -120,7 +120,12 @@ and a term there can explain 90 % of what the recalibration without the loop lea
    the tension, and a pulley's bearing friction is a force-proportional loop too. It is
    tried only in the place of terms whose force follows the direction of motion (pulley
    friction, viscous damping: ``Term.follows_direction``); in the place of every term it
-   also took a true creep (docs/discovery.md, "A loop that grows with the force").
+   also took a true creep (docs/discovery.md, "A loop that grows with the force"). A fourth
+   is the recalibration with the rope's own viscoelastic relaxation, Maxwell branches of 2
+   and 8 s (``Recalibration(relax=True)``), tried only in the place of terms whose force is
+   the force times a slow course (the temperature drift: ``Term.follows_slow_course``): on
+   the Bouc-Wen truth the rope's loop leaves a slow force that the temperature's one slow
+   swing followed (docs/discovery.md, "A slow force the rope's own relaxation explains").
 
 The price, said plainly: an effect that the recalibration can mimic over the recording
 (sag, and much of creep over a 30 s recording: a tension-dependent stiffness and a slow
@@ -275,7 +280,8 @@ class BlockScreen:
         still tested and recorded like the others, and go into the cable's model.
         ``alternatives``: other nuisances of the baseline's own family (the recalibration
         with the rate-independent loop where the robot-wide gate left it out, with a more
-        rate-dependent damping law, with a loop growing with the force), each tried in place
+        rate-dependent damping law, with a loop growing with the force, with the rope's
+        viscoelastic relaxation), each tried in place
         of ``base`` and the term on the cable of every term kept that it ``confronts``: a
         term stays named only where its cable's model with it does significantly better on
         held-out blocks than with each alternative instead (step 4, below)."""

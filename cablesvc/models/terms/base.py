@@ -117,6 +117,10 @@ class Term:
     #: loop draws the same shape, and such a term must also beat the loop that grows with
     #: the force (``Recalibration.confronts``)
     follows_direction: bool = False
+    #: True for a term whose force is the force times a slow course over the recording
+    #: (temperature): a rope's own viscoelastic relaxation leaves a slow force too, and such
+    #: a term must also beat it (``Recalibration(relax=True)``)
+    follows_slow_course: bool = False
     #: True for a term that delays the elongation by its hyper-parameter ``tau``: the
     #: other terms on the cable are then built on the delayed signals (:meth:`Signals.delayed`)
     delays_input: bool = False

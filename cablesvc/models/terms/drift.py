@@ -79,6 +79,7 @@ class TemperatureStiffness(Term):
     units = ("1/K", "-")
     ref_names = ("T_mean",)
     nuisance = ("g",)
+    follows_slow_course = True
 
     def applies(self, s, c):
         return s.temperature is not None and float(np.ptp(s.temperature)) > 0.05

@@ -13,6 +13,7 @@ from cablesvc.models.terms.base import LiveTerm, Term
 from cablesvc.models.terms.material import (AmplitudeStiffness, AsymmetricHardening, amplitude_varies,
                                             elongation_centre_scale)
 from cablesvc.models.play import LiveStops, initial_state_columns, stop_columns
+from cablesvc.models.relaxation import relaxation_columns
 from cablesvc.models.terms.signals import Signals, cable_view
 
 __all__ = ["Recalibration", "hysteretic_part"]
@@ -73,6 +74,13 @@ INITIAL = tuple(f"c_i{round(w * 1e4):02d}" for w in STOP_WIDTHS)
 LOOP = STOPS + INITIAL
 #: the loop's stops scaled by the force (offline only: a model-form alternative)
 FORCE_LOOP = tuple(f"c_f{round(w * 1e4):02d}" for w in STOP_WIDTHS)
+#: s: the relaxation times of the rope's own viscoelastic relaxation (Maxwell branches,
+#: :mod:`cablesvc.models.relaxation`; offline only: a model-form alternative), well inside
+#: a recording of tens of seconds: a branch that relaxes over the whole recording is a slow
+#: course in time, which a temperature drift draws too
+RELAX_TAUS = (2.0, 8.0)
+#: ... and their parameters, the force of each per training std of the elongation [N]
+RELAX = tuple(f"c_m{round(t):d}" for t in RELAX_TAUS)
 _N_BASE = 7 + 2 * len(RATE_EXPONENTS)               # the columns before the stops
 
 
@@ -187,7 +195,7 @@ class Recalibration(Term):
     held = _HELD + INITIAL
 
     def __init__(self, stops: bool = False, initial: bool = True, rate_exponents: tuple = RATE_EXPONENTS,
-                 force_loop: bool = False):
+                 force_loop: bool = False, relax: bool = False):
         #: whether the fit uses the loop, its stops and their state at the recording's start
         #: (False, the default: their columns are dropped, held at 0); the live form runs
         #: the loop wherever the file gives it a coefficient
@@ -213,9 +221,21 @@ class Recalibration(Term):
         self.force_loop = bool(force_loop)
         if self.force_loop and not self.stops:
             raise ValueError("force_loop needs stops=True (it scales the loop's stops)")
+        #: whether the fit also has the rope's own viscoelastic relaxation, Maxwell branches
+        #: of RELAX_TAUS (:mod:`cablesvc.models.relaxation`; c_m<tau> [N per training std
+        #: of the elongation]). Offline only, as a model-form alternative a term whose force
+        #: is the force times a slow course (temperature) must also beat
+        #: (:class:`cablesvc.discover.screen.BlockScreen`, step 4): on the Bouc-Wen truth the
+        #: rope's loop left a slow force that the temperature's slow swing followed. The
+        #: file and the live form have no such columns
+        self.relax = bool(relax)
+        self.params, self.units = Recalibration.params, Recalibration.units
         if self.force_loop:
-            self.params = Recalibration.params + FORCE_LOOP
-            self.units = Recalibration.units + tuple("N" for _ in FORCE_LOOP)
+            self.params = self.params + FORCE_LOOP
+            self.units = self.units + tuple("N" for _ in FORCE_LOOP)
+        if self.relax:
+            self.params = self.params + RELAX
+            self.units = self.units + tuple("N" for _ in RELAX)
 
     @property
     def design_key(self) -> str:
@@ -226,6 +246,8 @@ class Recalibration(Term):
             key += "+rate" + ",".join(f"{a:g}" for a in self.rate_exponents)
         if self.force_loop:
             key += "+force"
+        if self.relax:
+            key += "+relax"
         return key
 
     def confronts(self, term: Term) -> bool:
@@ -236,7 +258,11 @@ class Recalibration(Term):
         every term, it refused a true creep of the twin (a 20 s recording, cable 2: the term
         better by 5.6 noise variances, p = 0.09; its 3 mm stop times the force is nearly the
         elongation times the force, which follows a slow drift too; docs/discovery.md, "A
-        loop that grows with the force")."""
+        loop that grows with the force"). The viscoelastic relaxation confronts only the
+        terms whose force is the force times a slow course (``Term.follows_slow_course``:
+        the temperature drift)."""
+        if self.relax:
+            return term.follows_slow_course
         return not self.force_loop or term.follows_direction
 
     def describe_alternative(self) -> str:
@@ -247,6 +273,9 @@ class Recalibration(Term):
             parts.append("the rope's own rate-independent loop (Prandtl-Ishlinskii stops"
                          + (" and their state at the start" if self.initial else "")
                          + (", with a part growing with the force)" if self.force_loop else ")"))
+        if self.relax:
+            parts.append("the rope's own viscoelastic relaxation (Maxwell branches of "
+                         + " and ".join(f"{t:g}" for t in RELAX_TAUS) + " s)")
         if self.rate_exponents != RATE_EXPONENTS:
             parts.append("the baseline's own damping law (002 eq 8) with rate exponents "
                          + ", ".join(f"{a:g}" for a in self.rate_exponents))
@@ -268,8 +297,13 @@ class Recalibration(Term):
         k = len(STOP_WIDTHS)
         stop_columns(g.x, np.asarray(STOP_WIDTHS), out[_N_BASE:_N_BASE + k])
         initial_state_columns(g.x, np.asarray(STOP_WIDTHS), out[_N_BASE + k:_N_BASE + 2 * k])
+        j = _N_BASE + 2 * k
         if self.force_loop:                              # the stops times f0 / mean f0
-            np.multiply(out[_N_BASE:_N_BASE + k], g.f0 / R["f_mean"], out=out[_N_BASE + 2 * k:])
+            np.multiply(out[_N_BASE:_N_BASE + k], g.f0 / R["f_mean"], out=out[j:j + k])
+            j += k
+        if self.relax:                                   # Maxwell branches, per std of x
+            relaxation_columns(g.t, g.x, np.asarray(RELAX_TAUS), out[j:j + len(RELAX_TAUS)])
+            np.divide(out[j:j + len(RELAX_TAUS)], R["x_scale"], out=out[j:j + len(RELAX_TAUS)])
 
     @staticmethod
     def law(g, R, h, env, out, rate_exponents=RATE_EXPONENTS):
