@@ -739,23 +739,25 @@ def test_the_term_that_does_better_block_after_block_is_kept_first(monkeypatch):
     assert d0.named == ["pulley"]
 
 
+def _bench_case(seed, hysteresis, idx):
+    """Case ``idx`` of the realistic bench's 40-case plan of ``seed`` on the truth
+    ``hysteresis``, as ``cablesvc bench discover`` makes it: (spec, case, discovery)."""
+    from cablesvc.bench.discover_cases import calibrated_robot, case_plan, make_realistic_case
+
+    spec = case_plan(40, seed, 4, 1.0, 30.0, hysteresis)[idx]
+    sr = calibrated_robot(spec.robot_index, seed, spec.damping, spec.hysteresis)
+    case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
+                               rng=np.random.default_rng([seed, 7, spec.index]), duration=spec.duration)
+    return spec, case, discover(case.recording, sr.robot, case.baseline)
+
+
 def test_a_loop_that_grows_with_the_force_is_not_named_pulley_friction():
     # seed 11235 of the realistic bench on the Bouc-Wen truth (a rope whose strands slip):
     # on control 81 pulley friction passed the screen on cables 4 and 5. The friction
     # between strands grows with the tension, and the recalibration's stops scaled by the
     # force (an alternative of the rope's own loop) explain those cables as well; on single
     # 28, a true pulley friction on cables 3 and 6 beats that alternative and stays named
-    from cablesvc.bench.discover_cases import calibrated_robot, case_plan, make_realistic_case
-
-    seed = 11235
-    plan = case_plan(40, seed, 4, 1.0, 30.0, "boucwen")
-    got = {}
-    for idx in (81, 28):
-        spec = plan[idx]
-        sr = calibrated_robot(spec.robot_index, seed, spec.damping, spec.hysteresis)
-        case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
-                                   rng=np.random.default_rng([seed, 7, spec.index]), duration=spec.duration)
-        got[idx] = (spec, case, discover(case.recording, sr.robot, case.baseline))
+    got = {idx: _bench_case(11235, "boucwen", idx) for idx in (81, 28)}
     spec, case, d = got[81]
     assert spec.kind == "control" and d.named == []
     refused = d.options["model_form_refused"]
@@ -836,15 +838,7 @@ def test_a_slow_force_the_ropes_relaxation_explains_is_not_named_temperature():
     # the temperature's one slow swing follows it); Maxwell branches of 2 and 8 s explain
     # that cable as well held out, and it is not named. A true temperature drift (seed
     # 75319, default truth, single 30, cable 6) beats them and stays named
-    from cablesvc.bench.discover_cases import calibrated_robot, case_plan, make_realistic_case
-
-    got = {}
-    for seed, hy, idx in ((11235, "boucwen", 82), (75319, "envelope", 30)):
-        spec = case_plan(40, seed, 4, 1.0, 30.0, hy)[idx]
-        sr = calibrated_robot(spec.robot_index, seed, spec.damping, spec.hysteresis)
-        case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
-                                   rng=np.random.default_rng([seed, 7, spec.index]), duration=spec.duration)
-        got[idx] = (spec, case, discover(case.recording, sr.robot, case.baseline))
+    got = {idx: _bench_case(seed, hy, idx) for seed, hy, idx in ((11235, "boucwen", 82), (75319, "envelope", 30))}
     spec, case, d = got[82]
     assert spec.kind == "control" and d.named == []
     assert d.options["model_form_refused"]["temperature@4"]["alternative"].endswith("+relax")
