@@ -253,17 +253,17 @@ class Recalibration(Term):
     def confronts(self, term: Term) -> bool:
         """Whether this recalibration, as a model-form alternative, is tried in the place of
         ``term`` (:class:`cablesvc.discover.screen.BlockScreen`, step 4): every term, except
-        that the loop growing with the force only confronts the terms whose force follows
-        the direction of motion (``Term.follows_direction``: a loop, as it is). Tried on
+        that each offline-only part narrows it. The loop growing with the force only
+        confronts the terms whose force follows the direction of motion
+        (``Term.follows_direction``: a loop, as it is). Tried on
         every term, it refused a true creep of the twin (a 20 s recording, cable 2: the term
         better by 5.6 noise variances, p = 0.09; its 3 mm stop times the force is nearly the
         elongation times the force, which follows a slow drift too; docs/discovery.md, "A
         loop that grows with the force"). The viscoelastic relaxation confronts only the
         terms whose force is the force times a slow course (``Term.follows_slow_course``:
         the temperature drift)."""
-        if self.relax:
-            return term.follows_slow_course
-        return not self.force_loop or term.follows_direction
+        return ((not self.force_loop or term.follows_direction)
+                and (not self.relax or term.follows_slow_course))
 
     def describe_alternative(self) -> str:
         """What this recalibration holds beyond the nuisance's default, in words (a model-form
