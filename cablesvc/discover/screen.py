@@ -126,6 +126,13 @@ and a term there can explain 90 % of what the recalibration without the loop lea
    the force times a slow course (the temperature drift: ``Term.follows_slow_course``): on
    the Bouc-Wen truth the rope's loop leaves a slow force that the temperature's one slow
    swing followed (docs/discovery.md, "A slow force the rope's own relaxation explains").
+   A fifth, only where the gate left the loop out, is the rope's whole loop, its stops and
+   their unknown state at the recording's start (``Recalibration(stops=True,
+   spare_time=True)``), tried in the place of every term whose force does not follow time
+   (not creep's settling, ``Term.settles``, nor a temperature's slow course): on the
+   Bouc-Wen truth a loop the gate missed left on some cables a force that fades over the
+   first moves, which a sag took on controls; the state at the start fades as a settling
+   does and took true temperature cables (docs/discovery.md, "A loop the gate left out").
 
 The price, said plainly: an effect that the recalibration can mimic over the recording
 (sag, and much of creep over a 30 s recording: a tension-dependent stiffness and a slow

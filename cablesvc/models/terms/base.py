@@ -121,6 +121,10 @@ class Term:
     #: (temperature): a rope's own viscoelastic relaxation leaves a slow force too, and such
     #: a term must also beat it (``Recalibration(relax=True)``)
     follows_slow_course: bool = False
+    #: True for a term that settles from the recording's start (creep's a (1 - exp(-t/tau))):
+    #: the rope's loop with its unknown state at the start settles too, so such a term is
+    #: not asked to beat that state (``Recalibration(spare_time=True)``)
+    settles: bool = False
     #: True for a term that delays the elongation by its hyper-parameter ``tau``: the
     #: other terms on the cable are then built on the delayed signals (:meth:`Signals.delayed`)
     delays_input: bool = False

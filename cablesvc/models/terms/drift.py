@@ -38,6 +38,7 @@ class Creep(Term):
     hypers = ("tau",)
     ref_names = ("k",)
     n_hyper = 1
+    settles = True
     refine_hyper = "tau"
     refine_bounds = (0.1, 1e6)
 
