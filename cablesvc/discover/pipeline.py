@@ -737,14 +737,13 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     # rope's rate-independent loop than the robot's typical one: a term named there must
     # also do better than the recalibration with the loop's stops would in its place (the
     # stops without the loop's state at the recording's start, which a creep's settling
-    # shares by construction; BlockScreen's step 4)
-    alternatives = [] if loop["used"] else [Recalibration(stops=True, initial=False)]
-    # ... and, there, every term whose force does not follow time (a settling, a slow
-    # course) must also beat the whole loop, its unknown state at the start included: the
-    # gate asks for the loop on most cables, and a loop it left out still leaves, on the
-    # cables it did not pass on, a force that fades over the first moves
-    if not loop["used"]:
-        alternatives.append(Recalibration(stops=True, spare_time=True))
+    # shares by construction; BlockScreen's step 4); and every term whose force does not
+    # follow time (a settling, a slow course) must also beat the whole loop, its unknown
+    # state at the start included: the gate asks for the loop on most cables, and a loop it
+    # left out still leaves, on the cables it did not pass on, a force that fades over the
+    # first moves
+    alternatives = [] if loop["used"] else [Recalibration(stops=True, initial=False),
+                                            Recalibration(stops=True, spare_time=True)]
     # ... and than the baseline's own damping law with a more rate-dependent exponent would:
     # the recalibration's exponents (0, 0.25) stay well below a viscous force's 1 so that a
     # Kelvin-Voigt damper keeps a part of its own, and a rope whose damping is somewhat
