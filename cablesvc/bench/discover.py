@@ -251,7 +251,8 @@ def _realistic_row(spec: Any, seed: int) -> dict[str, Any]:
     from cablesvc.discover import discover
     sr = calibrated_robot(spec.robot_index, seed, spec.damping, spec.hysteresis)
     case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
-                               rng=np.random.default_rng([seed, 7, spec.index]), duration=spec.duration)
+                               rng=np.random.default_rng([seed, 7, spec.index]), duration=spec.duration,
+                               noise_filter_hz=getattr(spec, "noise_filter_hz", None))
     t1 = time.perf_counter()
     d = discover(case.recording, sr.robot, case.baseline)
     td = time.perf_counter() - t1
@@ -359,7 +360,7 @@ def _realistic_rows(plan: list[Any], seed: int, workers: int, progress: Optional
 
 def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Optional[Any] = None,
                   workers: int = 1, damping: float = 1.0, duration: Optional[float] = None,
-                  hysteresis: str = "envelope") -> dict[str, Any]:
+                  hysteresis: str = "envelope", noise_filter_hz: Optional[float] = None) -> dict[str, Any]:
     """Realistic bench: the plan of :func:`cablesvc.bench.discover_cases.case_plan` (``cases``
     singles, pairs and controls, ``cases // 2`` out-of-library cases) on ``fleet`` robots,
     run by ``workers`` processes (the result does not depend on it, but the seconds do);
@@ -367,11 +368,13 @@ def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Opti
     ``hysteresis`` the truth law's loop ("envelope" or "boucwen",
     :func:`~cablesvc.bench.discover_cases.robot_variant`);
     ``duration`` [s] is each recording's length (default
-    :data:`~cablesvc.bench.discover_cases.DURATION`, 30 s)."""
+    :data:`~cablesvc.bench.discover_cases.DURATION`, 30 s); ``noise_filter_hz`` [Hz] passes
+    the sensor noise through a first-order low-pass filter
+    (:func:`~cablesvc.bench.discover_cases.sensor_noise`; None: white)."""
     from cablesvc.bench.discover_cases import DURATION as CASE_DURATION, case_plan
     duration = CASE_DURATION if duration is None else float(duration)
     t0 = time.perf_counter()
-    plan = case_plan(cases, seed, fleet, damping, duration, hysteresis)
+    plan = case_plan(cases, seed, fleet, damping, duration, hysteresis, noise_filter_hz)
     per_case = []
     conf: dict[str, dict[str, int]] = {}
     split = {"simulate": 0.0, "identify": 0.0, "discover": 0.0}
@@ -442,6 +445,7 @@ def run_realistic(cases: int = 40, seed: int = 0, fleet: int = 4, progress: Opti
         "seconds_per_case": {k: v / n for k, v in split.items()},
         "seconds": time.perf_counter() - t0, "seed": seed, "workers": int(workers),
         "truth_damping": float(damping), "duration_s": duration, "truth_hysteresis": str(hysteresis),
+        "noise_filter_hz": noise_filter_hz,
     }
 
 
@@ -489,6 +493,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "shorter one gives the block tests too few blocks to name anything after Holm's "
                         "correction). The effects' RMS is drawn against the noise over the whole "
                         "recording, whatever its length")
+    p.add_argument("--noise-filter-hz", type=float, default=None, metavar="HZ",
+                   help="realistic: pass the force sensors' noise (0.1 N std) through a first-order "
+                        "low-pass filter of this cut-off, as a load-cell amplifier does, so that its ticks "
+                        "are correlated (default: white noise)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.set_defaults(func=main)
     return p
@@ -507,7 +515,8 @@ def _main_realistic(args) -> int:
 
         res = run_realistic(args.cases, args.seed, args.fleet, progress=prog, workers=args.workers,
                             damping=args.truth_damping, duration=getattr(args, "duration", None),
-                            hysteresis=getattr(args, "truth_hysteresis", "envelope"))
+                            hysteresis=getattr(args, "truth_hysteresis", "envelope"),
+                            noise_filter_hz=getattr(args, "noise_filter_hz", None))
     if args.json:
         print(json.dumps(jsonable(res), indent=1, default=float))   # an infinite limit as null
         return 0
@@ -543,8 +552,10 @@ def _main_realistic(args) -> int:
     if cb is not None:
         print(f"identified baseline on controls: test RMS residual {cb:.1f} x the noise (median)")
     sp = res["seconds_per_case"]
+    nfh = res.get("noise_filter_hz")
     print(f"{res['cases']} cases of {res['duration_s']:g} s on {res['fleet']} robots (truth {res['truth_hysteresis']} "
-          f"loop x {res['truth_damping']:g}) in {res['seconds']:.0f} s; per case: simulate "
+          f"loop x {res['truth_damping']:g}; sensor noise "
+          + ("white" if nfh is None else f"through a {nfh:g} Hz low-pass") + f") in {res['seconds']:.0f} s; per case: simulate "
           f"{sp['simulate']:.2f} s, identify {sp['identify']:.2f} s, discover {sp['discover']:.2f} s")
     return 0
 
@@ -570,6 +581,13 @@ def main(args) -> int:
     if du is not None and getattr(args, "ideal", False):
         print("--duration applies to the realistic bench only (the ideal bench's recordings are "
               f"{DURATION:g} s)", file=sys.stderr)
+        return 2
+    nf = getattr(args, "noise_filter_hz", None)
+    if nf is not None and not (math.isfinite(nf) and 0.0 < nf):
+        print(f"--noise-filter-hz must be a cut-off frequency > 0 Hz, got {nf}", file=sys.stderr)
+        return 2
+    if nf is not None and getattr(args, "ideal", False):
+        print("--noise-filter-hz applies to the realistic bench only", file=sys.stderr)
         return 2
     if getattr(args, "truth_hysteresis", "envelope") != "envelope" and getattr(args, "ideal", False):
         print("--truth-hysteresis applies to the realistic bench only (the ideal bench's truth is the twin's "

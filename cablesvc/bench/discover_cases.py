@@ -336,15 +336,33 @@ def _effect_rms(run: EquilibriumRun, sr: SimRobot, tr: _Traj, cables: tuple[int,
     return float(np.min(_effect_rms_cables(run, sr, tr, cables)))
 
 
+def sensor_noise(shape: tuple, seed: int, dt: float, filter_hz: Optional[float] = None) -> np.ndarray:
+    """The force sensors' noise [N], std NOISE per channel, from the case's ``seed``. White
+    by default; with ``filter_hz`` it has passed a first-order low-pass filter of that
+    cut-off (a load-cell amplifier's: y_n = phi y_(n-1) + sqrt(1 - phi^2) e_n, phi =
+    exp(-2 pi filter_hz dt), started in its stationary state), so its std stays NOISE
+    while its ticks are correlated over about 1 / (2 pi filter_hz) s."""
+    if filter_hz is None:
+        return NOISE * np.random.default_rng([seed, 3]).standard_normal(shape)
+    from scipy.signal import lfilter
+    phi = math.exp(-2.0 * math.pi * float(filter_hz) * dt)
+    e = np.random.default_rng([seed, 3, 1]).standard_normal((shape[0] + 1,) + tuple(shape[1:]))
+    y, _ = lfilter([math.sqrt(1.0 - phi * phi)], [1.0, -phi], e[1:], axis=0, zi=phi * e[:1])
+    return NOISE * y
+
+
 def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Optional[SimRobot] = None,
                         robot_index: int = 0, fleet_seed: int = 0,
-                        rng: Optional[np.random.Generator] = None, duration: float = DURATION) -> RealisticCase:
+                        rng: Optional[np.random.Generator] = None, duration: float = DURATION,
+                        noise_filter_hz: Optional[float] = None) -> RealisticCase:
     """Simulate one case: ``kind`` in :data:`KINDS`, ``names`` the concealed effects (twin
     effect names, or for ``ool`` one of :data:`~cablesvc.bench.truth.OOL_EFFECTS`),
     ``seed`` the trajectory/noise seed, ``robot`` (default: robot ``robot_index`` of fleet
     ``fleet_seed``), ``rng`` the draws of cables and magnitudes (default from ``seed``),
     ``duration`` [s] the recording's length (the effects' RMS is drawn against the noise over
-    the whole recording, whatever its length)."""
+    the whole recording, whatever its length), ``noise_filter_hz`` the cut-off [Hz] of a
+    first-order low-pass filter the sensor noise passes through (:func:`sensor_noise`; None:
+    white)."""
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     unknown = [n for n in names if n not in EFFECTS and n not in OOL_EFFECTS]
@@ -384,13 +402,13 @@ def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Option
         each = _effect_rms_cables(final, sr, tr, cs)
         rms[effects[0].name] = float(np.min(each))
         per_cable = {int(c): float(v) for c, v in zip(cs, each)}
-    noise = NOISE * np.random.default_rng([seed, 3]).standard_normal(final.measured.shape)
+    noise = sensor_noise(final.measured.shape, seed, 1.0 / RATE, noise_filter_hz)
     meas = final.measured + noise
     N = tr.t.size
     cables = sorted({c for e in effects for c in (e.applied_cables or e.cables)})
     truth = {"kind": kind, "effects": [e.to_dict() for e in effects], "names": sorted(names), "cables": cables,
              "ool": kind == "ool", "robot": sr.index, "variant": sr.variant.describe(), "noise_std": NOISE,
-             "trajectory": tr.params}
+             "noise_filter_hz": noise_filter_hz, "trajectory": tr.params}
     meta = {"generator": GENERATOR, "scenario": "trajectory", "seed": str(seed), "rate": repr(RATE),
             "scenario_params": json.dumps(jsonable(tr.params), sort_keys=True),
             "truth": json.dumps(jsonable(truth), sort_keys=True)}
@@ -417,7 +435,8 @@ def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Option
 @dataclass
 class CaseSpec:
     """One planned case: ``kind``, effect ``names``, ``seed``, ``robot_index``, ``index``,
-    the truth's ``damping`` scale (:func:`calibrated_robot`) and the recording's ``duration`` [s]."""
+    the truth's ``damping`` scale (:func:`calibrated_robot`), the recording's ``duration`` [s]
+    and the sensor noise's ``noise_filter_hz`` (:func:`sensor_noise`)."""
 
     kind: str
     names: list[str]
@@ -427,10 +446,12 @@ class CaseSpec:
     damping: float = 1.0
     duration: float = DURATION
     hysteresis: str = "envelope"
+    noise_filter_hz: Optional[float] = None
 
 
 def case_plan(cases: int = 40, seed: int = 0, fleet: int = 4, damping: float = 1.0,
-              duration: float = DURATION, hysteresis: str = "envelope") -> list[CaseSpec]:
+              duration: float = DURATION, hysteresis: str = "envelope",
+              noise_filter_hz: Optional[float] = None) -> list[CaseSpec]:
     """``cases`` single-effect cases (the seven twin effects in turn), as many pairs
     (pairs of different effects, drawn in turn from a shuffled list of all pairs), as many
     controls, and ``cases // 2`` (at least 1) out-of-library cases (the three in turn);
@@ -448,7 +469,8 @@ def case_plan(cases: int = 40, seed: int = 0, fleet: int = 4, damping: float = 1
     for i, (kind, nm) in enumerate(plan):
         out.append(CaseSpec(kind=kind, names=nm, seed=int(rng.integers(0, 2 ** 31 - 1)),
                             robot_index=i % max(1, int(fleet)), index=i, damping=float(damping),
-                            duration=float(duration), hysteresis=str(hysteresis)))
+                            duration=float(duration), hysteresis=str(hysteresis),
+                            noise_filter_hz=None if noise_filter_hz is None else float(noise_filter_hz)))
     return out
 
 
