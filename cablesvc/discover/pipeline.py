@@ -283,6 +283,13 @@ class Discovery:
                          + ", ".join(str(c) for c in loc["flagged"]))
         else:
             lines.append("no cable's residual exceeds the sensor-noise floor by 30 %")
+        corr = [d["cable"] for d in loc["cables"] if d.get("noise_correlated")]
+        if corr:
+            lines.append(f"the force sensors' noise is correlated from tick to tick on cable{'s' if len(corr) > 1 else ''} "
+                         f"{', '.join(map(str, corr))} (a low-pass filter in the amplifier?): its level is measured "
+                         "from differences 0.1 s apart, "
+                         + ", ".join(f"{loc['cables'][c]['noise']:.3g}" for c in corr)
+                         + " N; consecutive ticks would have shown only the part above the filter")
         if not self.findings:
             lines.append("nothing significant remains: no term improves the held-out fit enough to pay for its "
                          "parameters; the model is left as it is")
