@@ -286,6 +286,52 @@ def test_readings_that_drop_out_are_left_out_counted_and_named(tmp_path):
     assert "dropped" not in a.options
 
 
+def test_force_glitches_are_left_out_counted_and_named():
+    """A force reading that jumps by tens of newtons for one or two ticks (a bus error, an
+    electrical spike) is not sensor noise: left in, it sets the cable's noise floor several
+    times too high. It is left out as a missing reading is, counted and named, and the rest
+    of the recording gives the same findings and noise floor as without it."""
+    import dataclasses
+    rob = load_robot(ROBOT)
+    rec = _sim(None, ["viscous:8000@3", "pulley:0.004@1"], 7, 12.0, 100)
+    terms = library(["viscous", "pulley", "temperature"])
+    a = discover(rec, rob, terms=terms, exact_baseline=True)
+    f = rec.force.copy()
+    f[200, 3] += 25.0                           # one reading 25 N off
+    f[650:652, 1] -= (40.0, 38.0)               # two readings in a row
+    f[900, 5] += 1.5                            # small, but 15 x the noise
+    b = discover(dataclasses.replace(rec, force=f), rob, terms=terms, exact_baseline=True)
+    dr = b.options["dropped"]
+    assert dr["ticks"] == 4 and dr["runs"] == 3
+    ch = dr["channels"]
+    assert {k: v["ticks"] for k, v in ch.items()} == {"force of cable 3 (glitch)": 1, "force of cable 1 (glitch)": 2,
+                                                     "force of cable 5 (glitch)": 1}
+    assert ch["force of cable 3 (glitch)"]["values_N"] == [pytest.approx(f[200, 3])]
+    assert ch["force of cable 3 (glitch)"]["first_t"] == pytest.approx(2.0)
+    text = "\n".join(b.summary())
+    assert "force of cable 1: 2 readings more than 10 robust standard deviations off its neighbours" in text
+    np.testing.assert_allclose(b.noise, a.noise, rtol=0.05)
+    assert {f.term: f.cables for f in b.findings} == {f.term: f.cables for f in a.findings} \
+        == {"viscous": [3], "pulley": [1]}
+    assert "dropped" not in a.options                    # the clean recording has no glitch
+
+
+def test_force_glitches_leave_steps_kinks_and_noise_alone():
+    from cablesvc.discover.pipeline import force_glitches
+    rng = np.random.default_rng(2)
+    t = np.arange(6000) / 100.0
+    smooth = (3.0 * np.abs(((0.25 * t) % 2.0) - 1.0)            # kinks at reversals
+              + np.where(t > 20.0, 2.5, 0.0)                     # a step (a friction's sign)
+              + 0.8 * np.sin(2 * np.pi * 0.07 * t))
+    r = smooth[:, None] + 0.1 * rng.standard_normal((6000, 3))
+    assert not force_glitches(r).any()
+    assert not force_glitches(np.repeat(smooth[:, None], 2, axis=1)).any()    # no noise: nothing to judge by
+    r[1000, 0] += 2.0
+    r[3000:3002, 2] += 5.0
+    g = force_glitches(r)
+    assert set(zip(*np.nonzero(g))) == {(1000, 0), (3000, 2), (3001, 2)}
+
+
 def test_streamed_path_leaves_out_a_mean_with_no_reading_and_averages_the_rest(tmp_path):
     """1 kHz decimated by 10: a dropout over 50 ticks (5 whole means) leaves 5 analysis ticks
     out; a single missing reading is left out of its mean, which averages the other 9."""

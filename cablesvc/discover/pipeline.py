@@ -459,18 +459,42 @@ def _since(rec: Any, s: Signals, since: float,
     return rec.slice(k0), s2, breaks
 
 
-def finite_ticks(rec: Any) -> tuple[Any, Optional[np.ndarray], Optional[dict[str, Any]]]:
-    """The recording without the ticks that miss a reading discovery needs (a force, a
-    motor length, the pose or the time not finite, e.g. a sensor dropout written as null),
-    the mask of ticks that follow a gap so made (``breaks``; None when nothing was left
-    out) and what was left out (``dropped``: ticks, runs, per channel the count and the
-    first time, in the report and the JSON). The baseline runs across a gap as if the
-    record were one, as on the streamed path; the noise floor skips the jumps. A
-    temperature missing on some ticks is interpolated there (:func:`fill_slow`), not a
-    reason to leave ticks out; missing on most, the column is left out (the temperature
-    term is then not tried)."""
-    import dataclasses as _dc
+#: a force reading this many robust standard deviations off the median of its five-tick
+#: neighbourhood, in the baseline's residual, is a glitch (:func:`force_glitches`): far
+#: beyond anything Gaussian noise gives (10 sigma: about 1e-23 per reading), and a glitch
+#: of one or two ticks moves a five-tick median nowhere, while a step or a kink of the
+#: force does not stand off it
+GLITCH_SIGMAS = 10.0
+#: [N] below this robust spread a cable's residual has no noise to measure a glitch against
+#: (a noise-free simulation): nothing is called a glitch there
+GLITCH_MIN_SPREAD_N = 1e-3
 
+
+def force_glitches(r: np.ndarray) -> np.ndarray:
+    """Force readings that are glitches (N, m) bool: in the residual ``r`` (N, m) [N] of
+    the measured force against the baseline (which follows the force's own steps and
+    kinks), those more than GLITCH_SIGMAS robust standard deviations off the median of
+    the five ticks about them. A reading of one or two ticks that jumps by tens of newtons
+    (a bus error, an electrical spike) is not sensor noise: left in, three such readings in
+    30 s made one cable's noise floor 4-5 x what it is, and every test on that cable
+    measured against it."""
+    r = np.asarray(r, float)
+    n, m = r.shape
+    out = np.zeros((n, m), bool)
+    if n < 5:
+        return out
+    pad = np.pad(r, ((2, 2), (0, 0)), mode="edge")
+    med = np.median(np.lib.stride_tricks.sliding_window_view(pad, 5, axis=0), axis=-1)
+    dev = r - med
+    spread = 1.4826 * np.median(np.abs(dev - np.median(dev, axis=0)), axis=0)
+    ok = spread > GLITCH_MIN_SPREAD_N
+    out[:, ok] = np.abs(dev[:, ok]) > GLITCH_SIGMAS * spread[ok]
+    return out
+
+
+def _readings(rec: Any, glitches: Optional[np.ndarray] = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Per channel discovery needs, the mask of ticks whose reading is finite (and, for a
+    force, not a glitch of ``glitches``), and their intersection."""
     n = int(np.asarray(rec.t).shape[0])
     chans: dict[str, np.ndarray] = {"time": np.isfinite(np.asarray(rec.t, float))}
     ml = np.asarray(rec.motor_length, float)
@@ -480,12 +504,33 @@ def finite_ticks(rec: Any) -> tuple[Any, Optional[np.ndarray], Optional[dict[str
         f = np.asarray(rec.force, float)
         for c in range(f.shape[1]):
             chans[f"force of cable {c}"] = np.isfinite(f[:, c])
+            if glitches is not None and glitches[:, c].any():
+                chans[f"force of cable {c} (glitch)"] = ~glitches[:, c]
     if rec.position is not None and rec.orientation is not None:
         chans["pose"] = (np.all(np.isfinite(np.asarray(rec.position, float)), axis=1)
                          & np.all(np.isfinite(np.asarray(rec.orientation, float)), axis=1))
     ok = np.ones(n, bool)
     for v in chans.values():
         ok &= v
+    return ok, chans
+
+
+def finite_ticks(rec: Any, glitches: Optional[np.ndarray] = None
+                 ) -> tuple[Any, Optional[np.ndarray], Optional[dict[str, Any]]]:
+    """The recording without the ticks that miss a reading discovery needs (a force, a
+    motor length, the pose or the time not finite, e.g. a sensor dropout written as null;
+    or a force reading ``glitches`` (N, m) marks, :func:`force_glitches`), the mask of
+    ticks that follow a gap so made (``breaks``; None when nothing was left out) and what
+    was left out (``dropped``: ticks, runs, per channel the count and the first time, in
+    the report and the JSON). The baseline runs across a gap as if the record were one, as
+    on the streamed path; the noise floor skips the jumps. A temperature missing on some
+    ticks is interpolated there (:func:`fill_slow`), not a reason to leave ticks out;
+    missing on most, the column is left out (the temperature term is then not tried)."""
+    import dataclasses as _dc
+
+    ok, chans = _readings(rec, glitches)
+    n = ok.size
+    ml = np.asarray(rec.motor_length, float)
     temp = rec.temperature
     temp_filled = 0
     temp_dropped = False
@@ -498,6 +543,13 @@ def finite_ticks(rec: Any) -> tuple[Any, Optional[np.ndarray], Optional[dict[str
     per = {k: {"ticks": int((~v).sum()), "first_t": float(t[np.flatnonzero(~v)[0]] - t[np.isfinite(t)][0])
                if np.isfinite(t).any() else None}
            for k, v in chans.items() if not v.all()}
+    if glitches is not None and rec.force is not None:
+        f = np.asarray(rec.force, float)
+        for c in range(f.shape[1]):
+            k = f"force of cable {c} (glitch)"
+            if k in per:
+                per[k]["glitch"] = True
+                per[k]["values_N"] = [float(v) for v in f[glitches[:, c], c][:5]]
     keep = np.flatnonzero(ok)
     runs = int(np.count_nonzero(np.diff(np.r_[1, ok.astype(np.int8), 1]) == -1))
     dropped = {"ticks": int(n - keep.size), "of": n, "runs": runs, "channels": per,
@@ -538,9 +590,15 @@ def describe_dropped(dr: dict[str, Any]) -> str:
     parts = []
     for k, v in dr.get("channels", {}).items():
         when = f" (first at t = {v['first_t']:.3g} s)" if v.get("first_t") is not None else ""
+        if v.get("glitch"):
+            vals = ", ".join(f"{x:.4g}" for x in v.get("values_N", []))
+            parts.append(f"{k.replace(' (glitch)', '')}: {v['ticks']} reading{'s' if v['ticks'] > 1 else ''} "
+                         f"more than {GLITCH_SIGMAS:g} robust standard deviations off its neighbours, a glitch "
+                         f"not noise{when}, read as {vals} N")
+            continue
         parts.append(f"{k} missing on {v['ticks']} ticks{when}")
-    line = (f"left out {dr['ticks']} of {dr['of']} ticks in {dr['runs']} gap(s) with a reading missing or not "
-            f"finite: " + "; ".join(parts) if dr.get("ticks") else "")
+    line = (f"left out {dr['ticks']} of {dr['of']} ticks in {dr['runs']} gap(s) with a reading missing, not "
+            f"finite or a glitch: " + "; ".join(parts) if dr.get("ticks") else "")
     if dr.get("temperature_column_dropped"):
         line = (line + "; " if line else "") + ("the temperature is missing on more than half of the ticks: the "
                                                 "temperature column was left out (the temperature term is not "
@@ -577,8 +635,18 @@ def discover(recording: Any, robot: Union[Robot, str, "os.PathLike[str]"],
     rob = as_robot(robot)
     rec = recording if not isinstance(recording, (str, os.PathLike)) else read_recording(recording)
     base = baseline_params(rob, params)
-    rec, breaks, dropped = finite_ticks(rec)
+    rec0 = rec
+    rec, breaks, dropped = finite_ticks(rec0)
     s = build_signals(rec, rob, base)
+    # a force reading that jumps by far more than the noise for a tick or two is a glitch,
+    # left out as a missing one is (the baseline's residual, so the force's own steps and
+    # kinks do not count)
+    g = force_glitches(s.y - s.f0)
+    if g.any():
+        full = np.zeros(np.shape(rec0.force), bool)
+        full[_readings(rec0)[0]] = g
+        rec, breaks, dropped = finite_ticks(rec0, glitches=full)
+        s = build_signals(rec, rob, base)
     if since is not None and since > 0:
         rec, s, breaks = _since(rec, s, float(since), breaks)
     d = discover_signals(rec, rob, base, s, terms=terms, selector=selector, block=block,
