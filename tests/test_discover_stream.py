@@ -316,6 +316,30 @@ def test_force_glitches_are_left_out_counted_and_named():
     assert "dropped" not in a.options                    # the clean recording has no glitch
 
 
+def test_streamed_path_leaves_out_a_mean_a_glitch_threw_off(tmp_path):
+    """1 kHz decimated by 10: one raw reading 200 N off moves its 10-tick mean by 20 N, far
+    off its neighbours; that analysis tick is left out and counted, and discovery on the rest
+    gives the same findings and noise floor as on the clean recording."""
+    import dataclasses
+    rob = load_robot(ROBOT)
+    rec = _sim(None, ["viscous:8000@3"], 7, 12.0, 1000)
+    clean, spiky = tmp_path / "c.mcap", tmp_path / "s.mcap"
+    write_recording(clean, rec)
+    f = rec.force.copy()
+    f[5003, 4] += 200.0
+    f[8000, 2] -= 300.0
+    write_recording(spiky, dataclasses.replace(rec, force=f))
+    terms = library(["viscous", "pulley"])
+    a = discover_stream(clean, rob, terms=terms, exact_baseline=True)
+    b = discover_stream(spiky, rob, terms=terms, exact_baseline=True)
+    st = b.options["stream"]
+    assert st["glitch_ticks"] == 2 and st["glitches_per_cable"] == {4: 1, 2: 1}
+    assert st["analysis_ticks"] == a.options["stream"]["analysis_ticks"] - 2 and "glitch_ticks" not in a.options["stream"]
+    assert "2 analysis ticks left out as force glitches" in "\n".join(b.summary())
+    np.testing.assert_allclose(b.noise, a.noise, rtol=0.05)
+    assert {f.term: f.cables for f in b.findings} == {f.term: f.cables for f in a.findings} == {"viscous": [3]}
+
+
 def test_force_glitches_leave_steps_kinks_and_noise_alone():
     from cablesvc.discover.pipeline import force_glitches
     rng = np.random.default_rng(2)

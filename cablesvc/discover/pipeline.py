@@ -70,7 +70,11 @@ def describe_reduction(st: dict[str, Any]) -> str:
             f"{st['analysis_rate_hz']:.4g} Hz by {st['decimation']}-tick means; analysed {st['groups_kept']} of "
             f"{st['groups_seen']} split groups of {st['group_s']:g} s ({how}, {st['analysis_ticks']} ticks)"
             + (f"; {st['dropped_ticks']} analysis ticks left out, a reading missing or not finite on every tick "
-               f"of their mean" if st.get("dropped_ticks") else ""))
+               f"of their mean" if st.get("dropped_ticks") else "")
+            + (f"; {st['glitch_ticks']} analysis ticks left out as force glitches (a mean more than "
+               f"{GLITCH_SIGMAS:g} robust standard deviations of a raw reading off its neighbours: "
+               + ", ".join(f"cable {c}: {k}" for c, k in st["glitches_per_cable"].items()) + ")"
+               if st.get("glitch_ticks") else ""))
 
 
 def baseline_params(robot: Robot, params: Union[None, str, "os.PathLike[str]", ModelParams] = None) -> ModelParams:
@@ -443,20 +447,28 @@ def _since(rec: Any, s: Signals, since: float,
     kept starts a run) from ``since`` s after the recording's start on; the baseline and the
     amplitude were computed over the whole recording, so their hysteresis state at the cut
     is the one the live kernel has there."""
-    import copy as _copy
-
     k0 = int(np.searchsorted(s.t, since - 1e-9))
     if s.n - k0 < 200:
         raise DiscoveryError(f"--since {since:g} s leaves {s.n - k0} ticks of the recording; discovery needs >= 200")
-    s2 = _copy.copy(s)
-    for k in ("t", "y", "f0", "x", "v", "v_slide", "wrap", "free_length", "amplitude", "train"):
-        setattr(s2, k, getattr(s, k)[k0:])
-    s2.temperature = None if s.temperature is None else s.temperature[k0:]
-    s2.travel = None if s.travel is None else s.travel[k0:]
+    s2 = cut_signals(s, slice(k0, None))
     if breaks is not None:
         breaks = breaks[k0:].copy()
         breaks[0] = True
     return rec.slice(k0), s2, breaks
+
+
+def cut_signals(s: Signals, keep: Any) -> Signals:
+    """The signals of the ticks ``keep`` selects (a slice, an index or a mask): every
+    per-tick array cut alike; rates and the amplitude keep the values computed over the
+    whole record (the state the live kernel has on those ticks)."""
+    import copy as _copy
+
+    s2 = _copy.copy(s)
+    for k in ("t", "y", "f0", "x", "v", "v_slide", "wrap", "free_length", "amplitude", "train"):
+        setattr(s2, k, getattr(s, k)[keep])
+    s2.temperature = None if s.temperature is None else s.temperature[keep]
+    s2.travel = None if s.travel is None else s.travel[keep]
+    return s2
 
 
 #: a force reading this many robust standard deviations off the median of its five-tick
@@ -470,14 +482,18 @@ GLITCH_SIGMAS = 10.0
 GLITCH_MIN_SPREAD_N = 1e-3
 
 
-def force_glitches(r: np.ndarray) -> np.ndarray:
+def force_glitches(r: np.ndarray, spread_scale: float = 1.0) -> np.ndarray:
     """Force readings that are glitches (N, m) bool: in the residual ``r`` (N, m) [N] of
     the measured force against the baseline (which follows the force's own steps and
     kinks), those more than GLITCH_SIGMAS robust standard deviations off the median of
     the five ticks about them. A reading of one or two ticks that jumps by tens of newtons
     (a bus error, an electrical spike) is not sensor noise: left in, three such readings in
     30 s made one cable's noise floor 4-5 x what it is, and every test on that cable
-    measured against it."""
+    measured against it. ``spread_scale`` multiplies the robust spread the threshold is
+    counted in: the streamed path's D-tick means have sqrt(D) times less noise than a raw
+    reading, and a fast force step inside one mean leaves it off its neighbours by a
+    fraction of the step (:func:`cablesvc.discover.stream.drop_glitches` passes sqrt(D), so
+    a glitch is judged against a raw reading's noise there too)."""
     r = np.asarray(r, float)
     n, m = r.shape
     out = np.zeros((n, m), bool)
@@ -488,7 +504,7 @@ def force_glitches(r: np.ndarray) -> np.ndarray:
     dev = r - med
     spread = 1.4826 * np.median(np.abs(dev - np.median(dev, axis=0)), axis=0)
     ok = spread > GLITCH_MIN_SPREAD_N
-    out[:, ok] = np.abs(dev[:, ok]) > GLITCH_SIGMAS * spread[ok]
+    out[:, ok] = np.abs(dev[:, ok]) > GLITCH_SIGMAS * spread_scale * spread[ok]
     return out
 
 

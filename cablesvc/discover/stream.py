@@ -36,6 +36,7 @@ group are held at its first value, as at a recording's start.
 from __future__ import annotations
 
 import gc
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any, Optional
@@ -311,13 +312,41 @@ def discover_stream(path: Any, robot: Any, params: Any = None, *, terms: Optiona
 
     rob = as_robot(robot)
     base = baseline_params(rob, params)
-    red = read_reduced(path, rob, base, rate=rate, block=block, max_groups=max_groups, chunk_ticks=chunk_ticks)
+    red = drop_glitches(read_reduced(path, rob, base, rate=rate, block=block, max_groups=max_groups,
+                                     chunk_ticks=chunk_ticks))
     t_an = time.perf_counter()
     d = discover_signals(red, rob, base, red.signals, terms=terms, selector=selector, block=block,
                          exact_baseline=exact_baseline, t_origin=float(red.info["t0"]), breaks=red.breaks)
     red.info["analysis_seconds"] = time.perf_counter() - t_an
     d.options["stream"] = dict(red.info)
     return d
+
+
+def drop_glitches(red: ReducedRecording) -> ReducedRecording:
+    """``red`` without its analysis ticks whose decimated force is a glitch
+    (:func:`~cablesvc.discover.pipeline.force_glitches` on the baseline's residual, the
+    threshold counted in a raw reading's noise, sqrt(D) x a D-tick mean's: a spike of tens
+    of newtons in one raw reading still stands far off its neighbours in its mean, while a
+    fast force step that one mean straddles does not), counted in ``info``
+    (``glitch_ticks``, ``glitches_per_cable``)."""
+    import dataclasses as _dc
+
+    from cablesvc.discover.pipeline import cut_signals, force_glitches
+
+    s = red.signals
+    g = force_glitches(s.y - s.f0, math.sqrt(max(int(red.info.get("decimation", 1)), 1)))
+    if not g.any():
+        return red
+    keep = np.flatnonzero(~g.any(axis=1))
+    breaks = red.breaks[keep].copy()
+    breaks[1:] |= np.diff(keep) > 1
+    if breaks.size:
+        breaks[0] = True
+    info = {**red.info, "glitch_ticks": int(g.any(axis=1).sum()),
+            "glitches_per_cable": {int(c): int(k) for c, k in enumerate(g.sum(axis=0)) if k}}
+    info["analysis_ticks"] = int(keep.size)
+    return _dc.replace(red, t=red.t[keep], position=red.position[keep], orientation=red.orientation[keep],
+                       force=red.force[keep], signals=cut_signals(s, keep), breaks=breaks, info=info)
 
 
 def group_excitation(src: "_Decimator", group_s: float) -> tuple[np.ndarray, float]:
