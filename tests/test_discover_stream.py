@@ -306,7 +306,8 @@ def test_force_glitches_are_left_out_counted_and_named():
     ch = dr["channels"]
     assert {k: v["ticks"] for k, v in ch.items()} == {"force of cable 3 (glitch)": 1, "force of cable 1 (glitch)": 2,
                                                      "force of cable 5 (glitch)": 1}
-    assert ch["force of cable 3 (glitch)"]["values_N"] == [pytest.approx(f[200, 3])]
+    assert ch["force of cable 3 (glitch)"]["glitch"] == "force"
+    assert ch["force of cable 3 (glitch)"]["off_N"] == [pytest.approx(25.0, abs=0.5)]
     assert ch["force of cable 3 (glitch)"]["first_t"] == pytest.approx(2.0)
     text = "\n".join(b.summary())
     assert "force of cable 1: 2 readings more than 10 robust standard deviations off its neighbours" in text
@@ -335,25 +336,50 @@ def test_streamed_path_leaves_out_a_mean_a_glitch_threw_off(tmp_path):
     st = b.options["stream"]
     assert st["glitch_ticks"] == 2 and st["glitches_per_cable"] == {4: 1, 2: 1}
     assert st["analysis_ticks"] == a.options["stream"]["analysis_ticks"] - 2 and "glitch_ticks" not in a.options["stream"]
-    assert "2 analysis ticks left out as force glitches" in "\n".join(b.summary())
+    assert "2 analysis ticks left out as glitches" in "\n".join(b.summary())
     np.testing.assert_allclose(b.noise, a.noise, rtol=0.05)
     assert {f.term: f.cables for f in b.findings} == {f.term: f.cables for f in a.findings} == {"viscous": [3]}
 
 
-def test_force_glitches_leave_steps_kinks_and_noise_alone():
-    from cablesvc.discover.pipeline import force_glitches
+def test_glitches_leave_steps_kinks_and_noise_alone_and_say_which_reading_jumped():
+    from cablesvc.discover.pipeline import reading_glitches
     rng = np.random.default_rng(2)
     t = np.arange(6000) / 100.0
     smooth = (3.0 * np.abs(((0.25 * t) % 2.0) - 1.0)            # kinks at reversals
               + np.where(t > 20.0, 2.5, 0.0)                     # a step (a friction's sign)
               + 0.8 * np.sin(2 * np.pi * 0.07 * t))
-    r = smooth[:, None] + 0.1 * rng.standard_normal((6000, 3))
-    assert not force_glitches(r).any()
-    assert not force_glitches(np.repeat(smooth[:, None], 2, axis=1)).any()    # no noise: nothing to judge by
-    r[1000, 0] += 2.0
-    r[3000:3002, 2] += 5.0
-    g = force_glitches(r)
-    assert set(zip(*np.nonzero(g))) == {(1000, 0), (3000, 2), (3001, 2)}
+    f0 = 200.0 + 40.0 * np.sin(2 * np.pi * 0.1 * t)[:, None] * np.ones(3)   # the baseline's force
+    y = f0 + smooth[:, None] + 0.1 * rng.standard_normal((6000, 3))
+    gf, ge = reading_glitches(y, f0)
+    assert not gf.any() and not ge.any()
+    assert not any(g.any() for g in reading_glitches(f0 + smooth[:, None], f0))   # no noise: nothing to judge by
+    y[1000, 0] += 2.0                           # the force reading jumps
+    y[3000:3002, 2] += 5.0
+    f0g = f0.copy()
+    f0g[4000, 1] -= 3.0                         # the elongation did, and the baseline's force with it
+    gf, ge = reading_glitches(y, f0g)
+    assert set(zip(*np.nonzero(gf))) == {(1000, 0), (3000, 2), (3001, 2)}
+    assert set(zip(*np.nonzero(ge))) == {(4000, 1)}
+
+
+def test_a_pose_that_jumps_for_a_tick_is_named_as_such():
+    """The pose is recorded 1 mm off for one tick (a tracker's glitch): the elongation and
+    the baseline's force jump, the measured force does not. The tick is left out and the
+    report says it was the pose or a length, not the force."""
+    import dataclasses
+    rob = load_robot(ROBOT)
+    rec = _sim(None, ["viscous:8000@3"], 7, 12.0, 100)
+    pos = rec.position.copy()
+    pos[500] += (1e-3, 0.0, 0.0)
+    b = discover(dataclasses.replace(rec, position=pos), rob, terms=library(["viscous", "pulley"]),
+                 exact_baseline=True)
+    ch = b.options["dropped"]["channels"]
+    # every cable's elongation jumped on that tick; where the baseline's force follows the
+    # rate, the backward difference jumps back on the next one
+    assert len(ch) == 8 and all(k.startswith("elongation of cable") and v["glitch"] == "elongation"
+                                and v["ticks"] in (1, 2) and v["first_t"] == pytest.approx(5.0) for k, v in ch.items())
+    assert "the pose or a motor length jumped for 1 tick" in "\n".join(b.summary())
+    assert {f.term: f.cables for f in b.findings} == {"viscous": [3]}
 
 
 def test_streamed_path_leaves_out_a_mean_with_no_reading_and_averages_the_rest(tmp_path):

@@ -71,8 +71,8 @@ def describe_reduction(st: dict[str, Any]) -> str:
             f"{st['groups_seen']} split groups of {st['group_s']:g} s ({how}, {st['analysis_ticks']} ticks)"
             + (f"; {st['dropped_ticks']} analysis ticks left out, a reading missing or not finite on every tick "
                f"of their mean" if st.get("dropped_ticks") else "")
-            + (f"; {st['glitch_ticks']} analysis ticks left out as force glitches (a mean more than "
-               f"{GLITCH_SIGMAS:g} robust standard deviations of a raw reading off its neighbours: "
+            + (f"; {st['glitch_ticks']} analysis ticks left out as glitches (a mean of the baseline's residual "
+               f"more than {GLITCH_SIGMAS:g} robust standard deviations of a raw reading off its neighbours: "
                + ", ".join(f"cable {c}: {k}" for c, k in st["glitches_per_cable"].items()) + ")"
                if st.get("glitch_ticks") else ""))
 
@@ -471,8 +471,8 @@ def cut_signals(s: Signals, keep: Any) -> Signals:
     return s2
 
 
-#: a force reading this many robust standard deviations off the median of its five-tick
-#: neighbourhood, in the baseline's residual, is a glitch (:func:`force_glitches`): far
+#: a tick this many robust standard deviations off the median of its five-tick
+#: neighbourhood, in the baseline's residual, is a glitch (:func:`reading_glitches`): far
 #: beyond anything Gaussian noise gives (10 sigma: about 1e-23 per reading), and a glitch
 #: of one or two ticks moves a five-tick median nowhere, while a step or a kink of the
 #: force does not stand off it
@@ -482,35 +482,49 @@ GLITCH_SIGMAS = 10.0
 GLITCH_MIN_SPREAD_N = 1e-3
 
 
-def force_glitches(r: np.ndarray, spread_scale: float = 1.0) -> np.ndarray:
-    """Force readings that are glitches (N, m) bool: in the residual ``r`` (N, m) [N] of
-    the measured force against the baseline (which follows the force's own steps and
-    kinks), those more than GLITCH_SIGMAS robust standard deviations off the median of
-    the five ticks about them. A reading of one or two ticks that jumps by tens of newtons
-    (a bus error, an electrical spike) is not sensor noise: left in, three such readings in
-    30 s made one cable's noise floor 4-5 x what it is, and every test on that cable
-    measured against it. ``spread_scale`` multiplies the robust spread the threshold is
-    counted in: the streamed path's D-tick means have sqrt(D) times less noise than a raw
-    reading, and a fast force step inside one mean leaves it off its neighbours by a
-    fraction of the step (:func:`cablesvc.discover.stream.drop_glitches` passes sqrt(D), so
-    a glitch is judged against a raw reading's noise there too)."""
-    r = np.asarray(r, float)
-    n, m = r.shape
-    out = np.zeros((n, m), bool)
+def _off_median5(a: np.ndarray) -> np.ndarray:
+    """a (N, m) minus the median of the five ticks about each (the ends held)."""
+    pad = np.pad(a, ((2, 2), (0, 0)), mode="edge")
+    return a - np.median(np.lib.stride_tricks.sliding_window_view(pad, 5, axis=0), axis=-1)
+
+
+def reading_glitches(y: np.ndarray, f0: np.ndarray, spread_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Ticks where a reading glitched, per cable: ``(force, elongation)``, each (N, m) bool.
+    In the residual y - f0 [N] of the measured force ``y`` against the baseline ``f0``
+    (which follows the force's own steps and kinks), a tick more than GLITCH_SIGMAS robust
+    standard deviations off the median of the five ticks about it is a glitch. It is the
+    force reading's where the measured force itself stands off its neighbours so (a bus
+    error, an electrical spike), and the elongation's where it does not: the pose or a
+    motor length jumped for a tick and the baseline's force with it. Neither is sensor
+    noise: left in, three 20 N force glitches in 30 s made one cable's noise floor 4-5 x
+    what it is, and every test on that cable measured against it. ``spread_scale``
+    multiplies the robust spread the threshold is counted in: the streamed path's D-tick
+    means have sqrt(D) times less noise than a raw reading, and a fast force step inside
+    one mean leaves it off its neighbours by a fraction of the step
+    (:func:`cablesvc.discover.stream.drop_glitches` passes sqrt(D), so a glitch is judged
+    against a raw reading's noise there too)."""
+    y, f0 = np.asarray(y, float), np.asarray(f0, float)
+    n, m = y.shape
+    force, elong = np.zeros((n, m), bool), np.zeros((n, m), bool)
     if n < 5:
-        return out
-    pad = np.pad(r, ((2, 2), (0, 0)), mode="edge")
-    med = np.median(np.lib.stride_tricks.sliding_window_view(pad, 5, axis=0), axis=-1)
-    dev = r - med
+        return force, elong
+    dev = _off_median5(y - f0)
     spread = 1.4826 * np.median(np.abs(dev - np.median(dev, axis=0)), axis=0)
     ok = spread > GLITCH_MIN_SPREAD_N
-    out[:, ok] = np.abs(dev[:, ok]) > GLITCH_SIGMAS * spread_scale * spread[ok]
-    return out
+    thr = GLITCH_SIGMAS * spread_scale * spread
+    g = np.zeros((n, m), bool)
+    g[:, ok] = np.abs(dev[:, ok]) > thr[ok]
+    if g.any():
+        own = np.abs(_off_median5(y)) > thr
+        force = g & own
+        elong = g & ~own
+    return force, elong
 
 
-def _readings(rec: Any, glitches: Optional[np.ndarray] = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Per channel discovery needs, the mask of ticks whose reading is finite (and, for a
-    force, not a glitch of ``glitches``), and their intersection."""
+def _readings(rec: Any, glitches: Optional[tuple[np.ndarray, np.ndarray]] = None
+              ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Per channel discovery needs, the mask of ticks whose reading is finite (and not a
+    glitch of ``glitches``, :func:`reading_glitches`), and their intersection."""
     n = int(np.asarray(rec.t).shape[0])
     chans: dict[str, np.ndarray] = {"time": np.isfinite(np.asarray(rec.t, float))}
     ml = np.asarray(rec.motor_length, float)
@@ -520,22 +534,26 @@ def _readings(rec: Any, glitches: Optional[np.ndarray] = None) -> tuple[np.ndarr
         f = np.asarray(rec.force, float)
         for c in range(f.shape[1]):
             chans[f"force of cable {c}"] = np.isfinite(f[:, c])
-            if glitches is not None and glitches[:, c].any():
-                chans[f"force of cable {c} (glitch)"] = ~glitches[:, c]
     if rec.position is not None and rec.orientation is not None:
         chans["pose"] = (np.all(np.isfinite(np.asarray(rec.position, float)), axis=1)
                          & np.all(np.isfinite(np.asarray(rec.orientation, float)), axis=1))
+    for what, g in zip(("force", "elongation"), glitches or ()):
+        for c in range(g.shape[1]):
+            if g[:, c].any():
+                chans[f"{what} of cable {c} (glitch)"] = ~g[:, c]
     ok = np.ones(n, bool)
     for v in chans.values():
         ok &= v
     return ok, chans
 
 
-def finite_ticks(rec: Any, glitches: Optional[np.ndarray] = None
+def finite_ticks(rec: Any, glitches: Optional[tuple[np.ndarray, np.ndarray]] = None,
+                 glitch_values: Optional[np.ndarray] = None
                  ) -> tuple[Any, Optional[np.ndarray], Optional[dict[str, Any]]]:
     """The recording without the ticks that miss a reading discovery needs (a force, a
     motor length, the pose or the time not finite, e.g. a sensor dropout written as null;
-    or a force reading ``glitches`` (N, m) marks, :func:`force_glitches`), the mask of
+    or a tick ``glitches``, (force, elongation) (N, m) each, marks: :func:`reading_glitches`;
+    ``glitch_values`` (N, m) [N] how far the baseline's residual stood off there), the mask of
     ticks that follow a gap so made (``breaks``; None when nothing was left out) and what
     was left out (``dropped``: ticks, runs, per channel the count and the first time, in
     the report and the JSON). The baseline runs across a gap as if the record were one, as
@@ -559,13 +577,13 @@ def finite_ticks(rec: Any, glitches: Optional[np.ndarray] = None
     per = {k: {"ticks": int((~v).sum()), "first_t": float(t[np.flatnonzero(~v)[0]] - t[np.isfinite(t)][0])
                if np.isfinite(t).any() else None}
            for k, v in chans.items() if not v.all()}
-    if glitches is not None and rec.force is not None:
-        f = np.asarray(rec.force, float)
-        for c in range(f.shape[1]):
-            k = f"force of cable {c} (glitch)"
+    for what, g in zip(("force", "elongation"), glitches or ()):
+        for c in range(g.shape[1]):
+            k = f"{what} of cable {c} (glitch)"
             if k in per:
-                per[k]["glitch"] = True
-                per[k]["values_N"] = [float(v) for v in f[glitches[:, c], c][:5]]
+                per[k]["glitch"] = what
+                if glitch_values is not None:
+                    per[k]["off_N"] = [float(v) for v in glitch_values[g[:, c], c][:5]]
     keep = np.flatnonzero(ok)
     runs = int(np.count_nonzero(np.diff(np.r_[1, ok.astype(np.int8), 1]) == -1))
     dropped = {"ticks": int(n - keep.size), "of": n, "runs": runs, "channels": per,
@@ -607,10 +625,14 @@ def describe_dropped(dr: dict[str, Any]) -> str:
     for k, v in dr.get("channels", {}).items():
         when = f" (first at t = {v['first_t']:.3g} s)" if v.get("first_t") is not None else ""
         if v.get("glitch"):
-            vals = ", ".join(f"{x:.4g}" for x in v.get("values_N", []))
-            parts.append(f"{k.replace(' (glitch)', '')}: {v['ticks']} reading{'s' if v['ticks'] > 1 else ''} "
-                         f"more than {GLITCH_SIGMAS:g} robust standard deviations off its neighbours, a glitch "
-                         f"not noise{when}, read as {vals} N")
+            off = ", ".join(f"{x:+.3g}" for x in v.get("off_N", []))
+            off = f" ({off} N off the baseline's residual there)" if off else ""
+            what = (f"{v['ticks']} reading{'s' if v['ticks'] > 1 else ''} more than {GLITCH_SIGMAS:g} robust "
+                    "standard deviations off its neighbours, a glitch not noise" if v["glitch"] == "force" else
+                    f"the pose or a motor length jumped for {v['ticks']} tick{'s' if v['ticks'] > 1 else ''} "
+                    f"and the baseline's force with it, more than {GLITCH_SIGMAS:g} robust standard deviations "
+                    "of the residual off its neighbours while the measured force did not")
+            parts.append(f"{k.replace(' (glitch)', '')}: {what}{when}{off}")
             continue
         parts.append(f"{k} missing on {v['ticks']} ticks{when}")
     line = (f"left out {dr['ticks']} of {dr['of']} ticks in {dr['runs']} gap(s) with a reading missing, not "
@@ -654,14 +676,17 @@ def discover(recording: Any, robot: Union[Robot, str, "os.PathLike[str]"],
     rec0 = rec
     rec, breaks, dropped = finite_ticks(rec0)
     s = build_signals(rec, rob, base)
-    # a force reading that jumps by far more than the noise for a tick or two is a glitch,
-    # left out as a missing one is (the baseline's residual, so the force's own steps and
-    # kinks do not count)
-    g = force_glitches(s.y - s.f0)
-    if g.any():
-        full = np.zeros(np.shape(rec0.force), bool)
-        full[_readings(rec0)[0]] = g
-        rec, breaks, dropped = finite_ticks(rec0, glitches=full)
+    # a reading that jumps by far more than the noise for a tick or two (the force, or the
+    # pose or a length and the baseline's force with it) is a glitch, left out as a missing
+    # one is (in the baseline's residual, so the force's own steps and kinks do not count)
+    gf, ge = reading_glitches(s.y, s.f0)
+    if gf.any() or ge.any():
+        kept = _readings(rec0)[0]
+        full = [np.zeros(np.shape(rec0.force), bool) for _ in range(2)]
+        off = np.zeros(np.shape(rec0.force))
+        full[0][kept], full[1][kept] = gf, ge
+        off[kept] = _off_median5(s.y - s.f0)
+        rec, breaks, dropped = finite_ticks(rec0, glitches=(full[0], full[1]), glitch_values=off)
         s = build_signals(rec, rob, base)
     if since is not None and since > 0:
         rec, s, breaks = _since(rec, s, float(since), breaks)

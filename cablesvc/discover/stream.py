@@ -324,17 +324,18 @@ def discover_stream(path: Any, robot: Any, params: Any = None, *, terms: Optiona
 
 def drop_glitches(red: ReducedRecording) -> ReducedRecording:
     """``red`` without its analysis ticks whose decimated force is a glitch
-    (:func:`~cablesvc.discover.pipeline.force_glitches` on the baseline's residual, the
+    (:func:`~cablesvc.discover.pipeline.reading_glitches` on the baseline's residual, the
     threshold counted in a raw reading's noise, sqrt(D) x a D-tick mean's: a spike of tens
     of newtons in one raw reading still stands far off its neighbours in its mean, while a
     fast force step that one mean straddles does not), counted in ``info``
     (``glitch_ticks``, ``glitches_per_cable``)."""
     import dataclasses as _dc
 
-    from cablesvc.discover.pipeline import cut_signals, force_glitches
+    from cablesvc.discover.pipeline import cut_signals, reading_glitches
 
     s = red.signals
-    g = force_glitches(s.y - s.f0, math.sqrt(max(int(red.info.get("decimation", 1)), 1)))
+    gf, ge = reading_glitches(s.y, s.f0, math.sqrt(max(int(red.info.get("decimation", 1)), 1)))
+    g = gf | ge
     if not g.any():
         return red
     keep = np.flatnonzero(~g.any(axis=1))
