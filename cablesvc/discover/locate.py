@@ -33,8 +33,8 @@ __all__ = ["noise_floor", "cable_excess", "change_points", "state_variables", "s
 CORRELATED_NOISE_LAG_S = 0.1
 #: how much larger than the first-difference estimate the lagged one must be to be taken:
 #: on white noise the two agree (on 64 cable residuals of the realistic bench, both truth
-#: laws, the lagged one was at most 1.08 x the other); a filter of 10 Hz at 100 Hz makes
-#: it 1.5 x, one of 5 Hz 2.2 x
+#: laws, the lagged one was 0.96-1.07 x the other); a filter of 10 Hz at 100 Hz makes
+#: it 1.5 x, one of 5 Hz 1.9 x
 CORRELATED_NOISE_RATIO = 1.2
 
 
