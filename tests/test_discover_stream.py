@@ -378,7 +378,7 @@ def test_a_pose_that_jumps_for_a_tick_is_named_as_such():
     # rate, the backward difference jumps back on the next one
     assert len(ch) == 8 and all(k.startswith("elongation of cable") and v["glitch"] == "elongation"
                                 and v["ticks"] in (1, 2) and v["first_t"] == pytest.approx(5.0) for k, v in ch.items())
-    assert "the pose or a motor length jumped for 1 tick" in "\n".join(b.summary())
+    assert "the pose or a motor length jumped for a tick or two (first at t = 5 s): the baseline's force on cables 0, 1, 2" in "\n".join(b.summary())
     assert {f.term: f.cables for f in b.findings} == {"viscous": [3]}
 
 

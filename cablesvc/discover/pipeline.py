@@ -622,19 +622,28 @@ def fill_slow(t: np.ndarray, v: np.ndarray) -> tuple[Optional[np.ndarray], int]:
 def describe_dropped(dr: dict[str, Any]) -> str:
     """One line on what :func:`finite_ticks` left out."""
     parts = []
+    elong = {k: v for k, v in dr.get("channels", {}).items() if v.get("glitch") == "elongation"}
     for k, v in dr.get("channels", {}).items():
         when = f" (first at t = {v['first_t']:.3g} s)" if v.get("first_t") is not None else ""
-        if v.get("glitch"):
+        if v.get("glitch") == "force":
             off = ", ".join(f"{x:+.3g}" for x in v.get("off_N", []))
             off = f" ({off} N off the baseline's residual there)" if off else ""
-            what = (f"{v['ticks']} reading{'s' if v['ticks'] > 1 else ''} more than {GLITCH_SIGMAS:g} robust "
-                    "standard deviations off its neighbours, a glitch not noise" if v["glitch"] == "force" else
-                    f"the pose or a motor length jumped for {v['ticks']} tick{'s' if v['ticks'] > 1 else ''} "
-                    f"and the baseline's force with it, more than {GLITCH_SIGMAS:g} robust standard deviations "
-                    "of the residual off its neighbours while the measured force did not")
-            parts.append(f"{k.replace(' (glitch)', '')}: {what}{when}{off}")
-            continue
-        parts.append(f"{k} missing on {v['ticks']} ticks{when}")
+            parts.append(f"{k.replace(' (glitch)', '')}: {v['ticks']} reading{'s' if v['ticks'] > 1 else ''} more "
+                         f"than {GLITCH_SIGMAS:g} robust standard deviations off its neighbours, a glitch not "
+                         f"noise{when}{off}")
+        elif not v.get("glitch"):
+            parts.append(f"{k} missing on {v['ticks']} ticks{when}")
+    if elong:                   # one jump of the pose moves every cable's elongation: said once
+        cables = [k.split()[3] for k in elong]
+        first = min((v["first_t"] for v in elong.values() if v.get("first_t") is not None), default=None)
+        most = max((abs(x) for v in elong.values() for x in v.get("off_N", [])), default=None)
+        parts.append("the pose or a motor length jumped for a tick or two"
+                     + (f" (first at t = {first:.3g} s)" if first is not None else "")
+                     + f": the baseline's force on cable{'s' if len(cables) > 1 else ''} {', '.join(cables)} stood "
+                     + (f"up to {most:.3g} N " if most is not None else "")
+                     + f"off its neighbours, more than {GLITCH_SIGMAS:g} robust standard deviations, while the "
+                       "measured force did not (ticks left out per cable: "
+                     + ", ".join(f"{k.split()[3]}: {v['ticks']}" for k, v in elong.items()) + ")")
     line = (f"left out {dr['ticks']} of {dr['of']} ticks in {dr['runs']} gap(s) with a reading missing, not "
             f"finite or a glitch: " + "; ".join(parts) if dr.get("ticks") else "")
     if dr.get("temperature_column_dropped"):
