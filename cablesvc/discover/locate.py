@@ -22,6 +22,8 @@ from typing import Any, Optional
 
 import numpy as np
 
+from cablesvc.robust import robust_std
+
 __all__ = ["noise_floor", "cable_excess", "change_points", "state_variables", "state_regions", "frequency_bands",
            "locate"]
 
@@ -36,13 +38,6 @@ CORRELATED_NOISE_LAG_S = 0.1
 #: laws, the lagged one was 0.96-1.07 x the other); a filter of 10 Hz at 100 Hz makes
 #: it 1.5 x, one of 5 Hz 1.9 x
 CORRELATED_NOISE_RATIO = 1.2
-
-
-def _robust_std(d: np.ndarray) -> np.ndarray:
-    """Std per column from the median absolute deviation (a Gaussian's), NaN rows left out:
-    the few ticks where a second difference straddles a reversal's kink do not count."""
-    med = np.nanmedian(d, axis=0)
-    return 1.4826 * np.nanmedian(np.abs(d - med), axis=0)
 
 
 def noise_floor(r: np.ndarray, breaks: Optional[np.ndarray] = None, dt: Optional[float] = None,
@@ -74,7 +69,7 @@ def noise_floor(r: np.ndarray, breaks: Optional[np.ndarray] = None, dt: Optional
             cs = np.concatenate([[0], np.cumsum(np.asarray(breaks, bool)[1:])])
             d2 = d2[cs[2 * k:] - cs[:-2 * k] == 0]
         if d2.shape[0] > 8:
-            lagged = _robust_std(d2) / math.sqrt(6.0)
+            lagged = robust_std(d2) / math.sqrt(6.0)      # a reversal's kink does not count
             corr = lagged > CORRELATED_NOISE_RATIO * white
             white = np.where(corr, lagged, white)
     return (white, corr) if detail else white

@@ -43,6 +43,7 @@ from cablesvc.kinematics import inverse_kinematics
 from cablesvc.models import simulate
 from cablesvc.models.reversal import reversal_amplitude
 from cablesvc.models.terms import Signals, Term, library
+from cablesvc.robust import robust_std
 
 __all__ = ["Discovery", "Finding", "DiscoveryError", "as_robot", "baseline_params", "backward_rate", "build_signals",
            "describe_reduction", "split_blocks", "discover", "discover_signals"]
@@ -509,7 +510,7 @@ def reading_glitches(y: np.ndarray, f0: np.ndarray, spread_scale: float = 1.0) -
     if n < 5:
         return force, elong
     dev = _off_median5(y - f0)
-    spread = 1.4826 * np.median(np.abs(dev - np.median(dev, axis=0)), axis=0)
+    spread = robust_std(dev)
     ok = spread > GLITCH_MIN_SPREAD_N
     thr = GLITCH_SIGMAS * spread_scale * spread
     g = np.zeros((n, m), bool)
@@ -522,9 +523,10 @@ def reading_glitches(y: np.ndarray, f0: np.ndarray, spread_scale: float = 1.0) -
 
 
 def _readings(rec: Any, glitches: Optional[tuple[np.ndarray, np.ndarray]] = None
-              ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+              ) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, tuple[str, int]]]:
     """Per channel discovery needs, the mask of ticks whose reading is finite (and not a
-    glitch of ``glitches``, :func:`reading_glitches`), and their intersection."""
+    glitch of ``glitches``, :func:`reading_glitches`), their intersection, and for each
+    glitch channel which reading ("force" or "elongation") of which cable it is."""
     n = int(np.asarray(rec.t).shape[0])
     chans: dict[str, np.ndarray] = {"time": np.isfinite(np.asarray(rec.t, float))}
     ml = np.asarray(rec.motor_length, float)
@@ -537,14 +539,16 @@ def _readings(rec: Any, glitches: Optional[tuple[np.ndarray, np.ndarray]] = None
     if rec.position is not None and rec.orientation is not None:
         chans["pose"] = (np.all(np.isfinite(np.asarray(rec.position, float)), axis=1)
                          & np.all(np.isfinite(np.asarray(rec.orientation, float)), axis=1))
+    glitch_of: dict[str, tuple[str, int]] = {}
     for what, g in zip(("force", "elongation"), glitches or ()):
         for c in range(g.shape[1]):
             if g[:, c].any():
-                chans[f"{what} of cable {c} (glitch)"] = ~g[:, c]
+                k = f"{what} of cable {c} (glitch)"
+                chans[k], glitch_of[k] = ~g[:, c], (what, c)
     ok = np.ones(n, bool)
     for v in chans.values():
         ok &= v
-    return ok, chans
+    return ok, chans, glitch_of
 
 
 def finite_ticks(rec: Any, glitches: Optional[tuple[np.ndarray, np.ndarray]] = None,
@@ -562,7 +566,7 @@ def finite_ticks(rec: Any, glitches: Optional[tuple[np.ndarray, np.ndarray]] = N
     missing on most, the column is left out (the temperature term is then not tried)."""
     import dataclasses as _dc
 
-    ok, chans = _readings(rec, glitches)
+    ok, chans, glitch_of = _readings(rec, glitches)
     n = ok.size
     ml = np.asarray(rec.motor_length, float)
     temp = rec.temperature
@@ -577,13 +581,10 @@ def finite_ticks(rec: Any, glitches: Optional[tuple[np.ndarray, np.ndarray]] = N
     per = {k: {"ticks": int((~v).sum()), "first_t": float(t[np.flatnonzero(~v)[0]] - t[np.isfinite(t)][0])
                if np.isfinite(t).any() else None}
            for k, v in chans.items() if not v.all()}
-    for what, g in zip(("force", "elongation"), glitches or ()):
-        for c in range(g.shape[1]):
-            k = f"{what} of cable {c} (glitch)"
-            if k in per:
-                per[k]["glitch"] = what
-                if glitch_values is not None:
-                    per[k]["off_N"] = [float(v) for v in glitch_values[g[:, c], c][:5]]
+    for k, (what, c) in glitch_of.items():
+        per[k].update(glitch=what, cable=c)
+        if glitch_values is not None:
+            per[k]["off_N"] = [float(v) for v in glitch_values[~chans[k], c][:5]]
     keep = np.flatnonzero(ok)
     runs = int(np.count_nonzero(np.diff(np.r_[1, ok.astype(np.int8), 1]) == -1))
     dropped = {"ticks": int(n - keep.size), "of": n, "runs": runs, "channels": per,
@@ -634,7 +635,7 @@ def describe_dropped(dr: dict[str, Any]) -> str:
         elif not v.get("glitch"):
             parts.append(f"{k} missing on {v['ticks']} ticks{when}")
     if elong:                   # one jump of the pose moves every cable's elongation: said once
-        cables = [k.split()[3] for k in elong]
+        cables = [str(v["cable"]) for v in elong.values()]
         first = min((v["first_t"] for v in elong.values() if v.get("first_t") is not None), default=None)
         most = max((abs(x) for v in elong.values() for x in v.get("off_N", [])), default=None)
         parts.append("the pose or a motor length jumped for a tick or two"
@@ -643,7 +644,7 @@ def describe_dropped(dr: dict[str, Any]) -> str:
                      + (f"up to {most:.3g} N " if most is not None else "")
                      + f"off its neighbours, more than {GLITCH_SIGMAS:g} robust standard deviations, while the "
                        "measured force did not (ticks left out per cable: "
-                     + ", ".join(f"{k.split()[3]}: {v['ticks']}" for k, v in elong.items()) + ")")
+                     + ", ".join(f"{v['cable']}: {v['ticks']}" for v in elong.values()) + ")")
     line = (f"left out {dr['ticks']} of {dr['of']} ticks in {dr['runs']} gap(s) with a reading missing, not "
             f"finite or a glitch: " + "; ".join(parts) if dr.get("ticks") else "")
     if dr.get("temperature_column_dropped"):

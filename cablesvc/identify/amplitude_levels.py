@@ -23,6 +23,7 @@ from cablesvc.identify.result import IdentifyResult
 from cablesvc.models import AmplitudeDependent
 from cablesvc.models.amplitude import damping_normaliser
 from cablesvc.models.reversal import reversal_points
+from cablesvc.robust import robust_std
 
 __all__ = ["PER_LEVEL", "FREE", "UNITS", "ALPHA_GRID", "ALPHA_MAX", "Level", "segment_levels", "simulate_amplitude",
            "level_trace", "damping_regressor", "LevelData", "LevelFit", "lin_solve", "fit_levels"]
@@ -71,7 +72,7 @@ def segment_levels(x: np.ndarray, t: np.ndarray, *, cable: int = 0, rel_tol: flo
         eps = max(1e-9, 1e-3 * (float(np.ptp(x)) if x.size else 0.0))
         if x.size > 10:
             d2 = np.diff(x, 2)
-            sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
+            sigma = float(robust_std(d2)) / np.sqrt(6.0)
             eps = max(eps, 10.0 * sigma)
     r = reversal_points(x, eps)
     if r.size < 2:
