@@ -2,8 +2,9 @@
 
 Synthetic residuals (measured - predicted) at ``rate_hz`` (default 1 kHz) for ``n_cables``
 cables: a per-cable bias uniform in +-0.5 N (what a good model leaves, learned as the
-baseline during the warm-up) plus Gaussian sensor noise of ``noise_n`` (default 0.1 N).
-Six runs per seed, each through the detectors' ``update_batch`` (bit-identical to the
+baseline during the warm-up) plus Gaussian sensor noise of ``noise_n`` (default 0.1 N),
+white, or with ``--noise-filter-hz F`` through a first-order low-pass filter of cut-off F
+(a load-cell amplifier's; its std stays ``noise_n``). Six runs per seed, each through the detectors' ``update_batch`` (bit-identical to the
 per-tick path the daemon uses):
 
 - **noise only** for ``hours`` (default one hour, 3.6 M ticks), through drift and spread:
@@ -41,6 +42,8 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
+from cablesvc.simulate.noise import ar1, lowpass_phi
+
 if TYPE_CHECKING:      # the detectors load numba: imported where the bench runs, so that
     # building the CLI (every ``cablesvc`` command) does not pay for them
     from cablesvc.alarms.drift import DriftConfig
@@ -54,6 +57,7 @@ EFFECTS = ("friction", "viscous", "dead_time")
 def _run(dets, rng: np.random.Generator, bias: np.ndarray, rate: float, noise: float,
          duration_s: float, offset_fn: Callable[[np.ndarray], np.ndarray] | None, change_t: float,
          stop_when_all: bool, model_error: tuple[float, float] = (0.0, 1.0),
+         noise_filter_hz: float | None = None,
          ) -> tuple[list[dict[int, tuple[float, float]]], list[int], int]:
     """Feed ``duration_s`` of residuals to every detector of ``dets`` (the same data); returns,
     per detector, {cable: (raise t, value)} of the first raise at or after ``change_t``
@@ -61,14 +65,14 @@ def _run(dets, rng: np.random.Generator, bias: np.ndarray, rate: float, noise: f
     ``change_t``, and the samples processed. ``stop_when_all``: stop once the first detector
     has raised on every cable. ``model_error`` (std [N], correlation time [s]): a zero-mean
     Ornstein-Uhlenbeck component added to the residual, standing for model error that
-    varies slowly with the motion."""
-    from scipy.signal import lfilter
-
+    varies slowly with the motion. ``noise_filter_hz``: the sensor noise (std ``noise``)
+    has passed a first-order low-pass filter of that cut-off [Hz] (None: white)."""
     m = bias.size
     me_std, me_tau = model_error
     a = float(np.exp(-1.0 / (rate * me_tau)))
-    me_b = [me_std * float(np.sqrt(1.0 - a * a))]
-    zi = (rng.standard_normal(m) * me_std * a)[None, :] if me_std > 0 else None
+    ou_prev = rng.standard_normal(m) if me_std > 0 else None
+    phi = lowpass_phi(noise_filter_hz, 1.0 / rate) if noise_filter_hz else None
+    noise_prev = rng.standard_normal(m) if phi is not None else None
     n_total = int(round(duration_s * rate))
     chunk = int(CHUNK_S * rate)
     firsts: list[dict[int, tuple[float, float]]] = [{} for _ in dets]
@@ -78,11 +82,15 @@ def _run(dets, rng: np.random.Generator, bias: np.ndarray, rate: float, noise: f
         n = min(chunk, n_total - k0)
         t = (k0 + np.arange(n)) / rate
         R = rng.standard_normal((n, m))
+        if phi is not None:
+            R = ar1(R, phi, noise_prev)
+            noise_prev = R[-1].copy()
         R *= noise
         R += bias
-        if zi is not None:
-            ou, zi = lfilter(me_b, [1.0, -a], rng.standard_normal((n, m)), axis=0, zi=zi)
-            R += ou
+        if ou_prev is not None:
+            ou = ar1(rng.standard_normal((n, m)), a, ou_prev)
+            ou_prev = ou[-1].copy()
+            R += me_std * ou
         if offset_fn is not None:
             R += offset_fn(t)
         for j, det in enumerate(dets):
@@ -140,14 +148,16 @@ def _summary(values: list[float]) -> dict[str, float | None]:
 def run_alarm_bench(seed: int = 0, hours: float = 1.0, *, n_seeds: int = 5, n_cables: int = 8,
                     rate_hz: float = 1000.0, noise_n: float = 0.1, step_n: float = 0.4,
                     ramp_n_per_h: float = 0.4, model_error_n: float = 0.0, model_error_tau_s: float = 5.0,
-                    effect_n: float = 0.3, period_s: float = 4.0,
+                    effect_n: float = 0.3, period_s: float = 4.0, noise_filter_hz: float | None = None,
                     config: DriftConfig | None = None, spread_config: SpreadConfig | None = None,
                     progress: Callable[[str, int, int], None] | None = None) -> dict[str, Any]:
     """Run the scenarios for seeds ``seed .. seed + n_seeds - 1``; see the module
     docstring. Units: s, N, Hz. Returns a JSON-able dict with ``per_seed`` rows and the
     ``step``, ``ramp`` and ``noise`` summaries of drift and the ``spread`` summary.
     ``model_error_n`` > 0 adds a slowly varying zero-mean residual (std [N], correlation
-    time ``model_error_tau_s`` [s]) to every run: a robustness check beyond white sensor noise."""
+    time ``model_error_tau_s`` [s]) to every run: a robustness check beyond white sensor noise;
+    ``noise_filter_hz`` passes the sensor noise through a first-order low-pass filter of that
+    cut-off [Hz] (a load-cell amplifier's; its std stays ``noise_n``)."""
     from cablesvc.alarms.drift import DriftConfig, DriftDetector
     from cablesvc.alarms.spread import SpreadConfig, SpreadDetector
 
@@ -163,7 +173,7 @@ def run_alarm_bench(seed: int = 0, hours: float = 1.0, *, n_seeds: int = 5, n_ca
     false_noise = false_pre = spread_false = spread_on_step = 0
     eff: dict[str, dict[str, list]] = {k: {"delay": [], "spread": [], "drift": [], "early": []} for k in EFFECTS}
     samples = 0
-    me = (model_error_n, model_error_tau_s)
+    nk = dict(model_error=(model_error_n, model_error_tau_s), noise_filter_hz=noise_filter_hz)
     wall0 = time.perf_counter()
     for j in range(n_seeds):
         s = seed + j
@@ -173,7 +183,7 @@ def run_alarm_bench(seed: int = 0, hours: float = 1.0, *, n_seeds: int = 5, n_ca
         if progress:
             progress("noise", j, n_seeds)
         (_, _), (early, early_sp), ns = _run([DriftDetector(n_cables, cfg), SpreadDetector(n_cables, scfg)], rng,
-                                             bias, rate_hz, noise_n, hours * 3600.0, None, float("inf"), False, me)
+                                             bias, rate_hz, noise_n, hours * 3600.0, None, float("inf"), False, **nk)
         n_false = early
         samples += ns
         # step (spread runs beside drift: how often a step of the mean also raises spread)
@@ -181,7 +191,7 @@ def run_alarm_bench(seed: int = 0, hours: float = 1.0, *, n_seeds: int = 5, n_ca
             progress("step", j, n_seeds)
         (fs, fs_sp), (early_s, _), ns = _run(
             [DriftDetector(n_cables, cfg), SpreadDetector(n_cables, scfg)], rng, bias, rate_hz, noise_n,
-            pre_s + step_max_s, lambda t: np.where(t[:, None] >= pre_s, step_n * signs, 0.0), pre_s, True, me)
+            pre_s + step_max_s, lambda t: np.where(t[:, None] >= pre_s, step_n * signs, 0.0), pre_s, True, **nk)
         samples += ns
         sd = [fs[i][0] - pre_s for i in sorted(fs)]
         so = [fs[i][1] * signs[i] for i in sorted(fs)]
@@ -190,7 +200,7 @@ def run_alarm_bench(seed: int = 0, hours: float = 1.0, *, n_seeds: int = 5, n_ca
             progress("ramp", j, n_seeds)
         rate_s = ramp_n_per_h / 3600.0
         (fr,), (early_r,), ns = _run([DriftDetector(n_cables, cfg)], rng, bias, rate_hz, noise_n, pre_s + ramp_max_s,
-                                     lambda t: np.maximum(t[:, None] - pre_s, 0.0) * rate_s * signs, pre_s, True, me)
+                                     lambda t: np.maximum(t[:, None] - pre_s, 0.0) * rate_s * signs, pre_s, True, **nk)
         samples += ns
         rd = [fr[i][0] - pre_s for i in sorted(fr)]
         ro = [fr[i][1] * signs[i] for i in sorted(fr)]
@@ -202,7 +212,7 @@ def run_alarm_bench(seed: int = 0, hours: float = 1.0, *, n_seeds: int = 5, n_ca
                 progress(kind, j, n_seeds)
             (fe, fe_dr), (early_e, early_ed), ns = _run(
                 [SpreadDetector(n_cables, scfg), DriftDetector(n_cables, cfg)], rng, bias, rate_hz, noise_n,
-                pre_s + effect_max_s, zero_mean_effect(kind, n_cables, effect_n, period_s, pre_s), pre_s, True, me)
+                pre_s + effect_max_s, zero_mean_effect(kind, n_cables, effect_n, period_s, pre_s), pre_s, True, **nk)
             samples += ns
             ed = [fe[i][0] - pre_s for i in sorted(fe)]
             e = eff[kind]
@@ -236,6 +246,7 @@ def run_alarm_bench(seed: int = 0, hours: float = 1.0, *, n_seeds: int = 5, n_ca
                   "noise_n": noise_n, "hours_noise_only": hours, "step_n": step_n, "ramp_n_per_h": ramp_n_per_h,
                   "change_at_s": pre_s, "bias": "uniform +-0.5 N per cable",
                   "model_error_n": model_error_n, "model_error_tau_s": model_error_tau_s,
+                  "noise_filter_hz": noise_filter_hz,
                   "effect_n": effect_n, "period_s": period_s, "dead_time_s": dead_time_s(effect_n, period_s),
                   "dead_time_swing_n": SWING_N, "effect_window_s": effect_max_s},
         "noise": {"ticks_per_seed": int(round(hours * 3600.0 * rate_hz)), "false_alarms": false_noise,
@@ -337,7 +348,8 @@ def cmd_bench_alarms(args) -> int:
     """Handler of ``cablesvc bench alarms``."""
     kw = dict(n_seeds=args.seeds, n_cables=args.cables, rate_hz=args.rate, noise_n=args.noise,
               step_n=args.step, ramp_n_per_h=args.ramp, model_error_n=args.model_error,
-              model_error_tau_s=args.model_error_tau, effect_n=args.effect, period_s=args.period)
+              model_error_tau_s=args.model_error_tau, effect_n=args.effect, period_s=args.period,
+              noise_filter_hz=args.noise_filter_hz)
     if args.json:
         res = run_alarm_bench(args.seed, args.hours, **kw)
         if args.replay > 0:
@@ -359,7 +371,8 @@ def cmd_bench_alarms(args) -> int:
         res = run_alarm_bench(args.seed, args.hours, progress=cb, **kw)
     su = res["setup"]
     tb = Table(title=(f"drift detector: {su['cables']} cables x {len(su['seeds'])} seeds, {su['rate_hz']:g} Hz, "
-                      f"noise {su['noise_n']:g} N"))
+                      f"noise {su['noise_n']:g} N"
+                      + (f" through a {su['noise_filter_hz']:g} Hz filter" if su['noise_filter_hz'] else "")))
     for c in ("scenario", "raised", "delay s (med)", "delay s (max)", "offset N (med)", "false alarms"):
         tb.add_column(c, justify="right")
 
@@ -419,6 +432,9 @@ def add_parser(subparsers) -> Any:
     p.add_argument("--rate", type=float, default=1000.0, help="tick rate in Hz (default 1000)")
     p.add_argument("--noise", type=float, default=0.1, help="sensor noise std in N (default 0.1)")
     p.add_argument("--step", type=float, default=0.4, help="step offset in N (default 0.4)")
+    p.add_argument("--noise-filter-hz", type=float, default=None, metavar="F",
+                   help="pass the sensor noise through a first-order low-pass filter of cut-off F Hz, as a "
+                        "load-cell amplifier does (its std stays --noise; default: white)")
     p.add_argument("--ramp", type=float, default=0.4, help="ramp rate in N per hour (default 0.4)")
     p.add_argument("--model-error", type=float, default=0.0,
                    help="std in N of a slowly varying zero-mean model error added to the residual (default 0)")

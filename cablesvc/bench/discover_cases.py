@@ -74,6 +74,7 @@ from cablesvc.recording import Recording
 from cablesvc.simulate import EFFECTS
 from cablesvc.simulate.effects import Effect
 from cablesvc.simulate.elastic import ElasticCurve
+from cablesvc.simulate.noise import ar1, lowpass_phi
 from cablesvc.simulate.scenarios import ScenarioContext, hold_sine, trajectory
 from cablesvc.simulate.twin import Ambient
 
@@ -344,11 +345,8 @@ def sensor_noise(shape: tuple, seed: int, dt: float, filter_hz: Optional[float] 
     while its ticks are correlated over about 1 / (2 pi filter_hz) s."""
     if filter_hz is None:
         return NOISE * np.random.default_rng([seed, 3]).standard_normal(shape)
-    from scipy.signal import lfilter
-    phi = math.exp(-2.0 * math.pi * float(filter_hz) * dt)
     e = np.random.default_rng([seed, 3, 1]).standard_normal((shape[0] + 1,) + tuple(shape[1:]))
-    y, _ = lfilter([math.sqrt(1.0 - phi * phi)], [1.0, -phi], e[1:], axis=0, zi=phi * e[:1])
-    return NOISE * y
+    return NOISE * ar1(e[1:], lowpass_phi(filter_hz, dt), e[0])
 
 
 def make_realistic_case(kind: str, names: list[str], seed: int, *, robot: Optional[SimRobot] = None,

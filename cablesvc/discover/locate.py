@@ -22,22 +22,11 @@ from typing import Any, Optional
 
 import numpy as np
 
+from cablesvc.noise import NOISE_LAG_S, NOISE_RATIO
 from cablesvc.robust import robust_std
 
 __all__ = ["noise_floor", "cable_excess", "change_points", "state_variables", "state_regions", "frequency_bands",
            "locate"]
-
-
-#: s: the lag of the second differences that measure a noise whose ticks are correlated
-#: (a force channel behind a low-pass filter): long against a load-cell amplifier's filter
-#: (a 10 Hz first-order filter's correlation has fallen to 2 % after it), short against
-#: the trajectory's moves, whose smooth part a second difference cancels
-CORRELATED_NOISE_LAG_S = 0.1
-#: how much larger than the first-difference estimate the lagged one must be to be taken:
-#: on white noise the two agree (on 64 cable residuals of the realistic bench, both truth
-#: laws, the lagged one was 0.96-1.07 x the other); a filter of 10 Hz at 100 Hz makes
-#: it 1.5 x, one of 5 Hz 1.9 x
-CORRELATED_NOISE_RATIO = 1.2
 
 
 def noise_floor(r: np.ndarray, breaks: Optional[np.ndarray] = None, dt: Optional[float] = None,
@@ -49,9 +38,10 @@ def noise_floor(r: np.ndarray, breaks: Optional[np.ndarray] = None, dt: Optional
     first-order filter at 100 Hz halves sigma so measured, and every gain in noise
     variances, every floor and the forces' balance would be read four times too large.
     With ``dt`` [s], sigma is also measured from second differences at a lag of
-    CORRELATED_NOISE_LAG_S (r(t + k) - 2 r(t) + r(t - k), robust std / sqrt 6: a
+    :data:`~cablesvc.noise.NOISE_LAG_S` (r(t + k) - 2 r(t) + r(t - k), robust std / sqrt 6: a
     trajectory's smooth part cancels to second order, the kinks at reversals are outliers)
-    and taken where it is more than CORRELATED_NOISE_RATIO x the first-difference one;
+    and taken where it is more than :data:`~cablesvc.noise.NOISE_RATIO` x the
+    first-difference one (the live ``spread`` alarm does the same, :mod:`cablesvc.noise`);
     elsewhere the white-noise estimate stands unchanged. ``breaks`` (N,) bool marks the
     first tick after a gap in time (the kept groups of a streamed long recording): the
     jumps across gaps are not noise and are left out. ``detail``: also return, per column,
@@ -62,7 +52,7 @@ def noise_floor(r: np.ndarray, breaks: Optional[np.ndarray] = None, dt: Optional
         d = d[~breaks[1:]]
     white = np.std(d, axis=0) / math.sqrt(2.0)
     corr = np.zeros(white.shape, bool)
-    k = int(round(CORRELATED_NOISE_LAG_S / dt)) if dt is not None and dt > 0 else 0
+    k = int(round(NOISE_LAG_S / dt)) if dt is not None and dt > 0 else 0
     if k >= 2 and r.shape[0] > 8 * k:
         d2 = r[2 * k:] - 2.0 * r[k:-k] + r[:-2 * k]
         if breaks is not None:              # a triplet that straddles a gap is no difference
@@ -70,7 +60,7 @@ def noise_floor(r: np.ndarray, breaks: Optional[np.ndarray] = None, dt: Optional
             d2 = d2[cs[2 * k:] - cs[:-2 * k] == 0]
         if d2.shape[0] > 8:
             lagged = robust_std(d2) / math.sqrt(6.0)      # a reversal's kink does not count
-            corr = lagged > CORRELATED_NOISE_RATIO * white
+            corr = lagged > NOISE_RATIO * white
             white = np.where(corr, lagged, white)
     return (white, corr) if detail else white
 
