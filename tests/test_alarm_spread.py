@@ -1,5 +1,6 @@
 """Spread alarm: raises on zero-mean model errors that drift cannot see (pulley friction
-sign(v), viscous, dead time), not on white noise at the noise floor, the same decision time
+sign(v), viscous, dead time), not on white noise at the noise floor nor on a filtered
+sensor's noise (read at its level from lagged second differences), the same decision time
 at 100 Hz and 1 kHz, batch == tick by tick, snapshots (detector and manager, through the
 daemon's snapshot files), configuration, and no allocation per tick."""
 
@@ -26,6 +27,8 @@ from cablesvc.kernel import Predictor
 from cablesvc.kinematics import inverse_kinematics
 from cablesvc.service.snapshot import read_snapshot, write_snapshot
 from cablesvc.service.messages import ALARM_SCHEMA, check_schema
+from cablesvc.noise import NOISE_RATIO
+from cablesvc.simulate.noise import ar1, lowpass_phi
 
 NOISE = 0.1
 PERIOD = 4.0                     # s, period of the motion
@@ -116,6 +119,90 @@ def test_thirty_minutes_of_white_noise_at_1_khz_raise_nothing():
     assert events == []
     assert det.ready.all() and not det.active.any()
     np.testing.assert_allclose(det.ratio, 1.0, atol=0.05)      # far below raise_ratio 1.5
+
+
+def filtered_noise(rng, rate, duration, m, cutoff_hz, k0=0):
+    """(t, R): sensor noise of std NOISE through a first-order low-pass filter (a load-cell
+    amplifier's) plus a per-cable bias."""
+    t = (k0 + np.arange(int(round(duration * rate)))) / rate
+    y = ar1(rng.standard_normal((t.size, m)), lowpass_phi(cutoff_hz, 1.0 / rate), rng.standard_normal(m))
+    return t, NOISE * y + rng.uniform(-0.5, 0.5, m)
+
+
+@pytest.mark.parametrize("rate,cutoff", [(100.0, 10.0), (100.0, 5.0), (1000.0, 20.0), (1000.0, 5.0)])
+def test_a_filtered_sensors_noise_is_read_at_its_level_and_friction_still_raises(rate, cutoff):
+    """Behind an amplifier's filter consecutive samples are correlated: their differences read
+    the noise below its level (10 Hz at 100 Hz: 0.7 x, 5 Hz at 1 kHz: 0.18 x) and the floor of
+    consecutive samples alone raises on pure noise. The lagged floor reads it at its level."""
+    m = 4
+    rng = np.random.default_rng(int(rate + cutoff))
+    t, R = filtered_noise(rng, rate, 240.0, m, cutoff)
+    consecutive_only = SpreadDetector(m, SpreadConfig(noise_lag_s=0.0))
+    assert raises(consecutive_only.update_batch(t, R, seq=0))      # what the lagged floor is for
+    det = SpreadDetector(m)
+    assert det.update_batch(t, R, seq=0) == []
+    assert det.noise_correlated.all()
+    np.testing.assert_allclose(det.floor, NOISE, rtol=0.2)
+    assert (det.ratio < 1.3).all()
+    # a friction of 3 x the noise on cable 0 still raises there, and only there
+    t2, R2 = filtered_noise(rng, rate, 100.0, m, cutoff)
+    fr = friction_on_cable0(m)(t2)
+    ev = SpreadDetector(m).update_batch(t2, R2 + fr, seq=0)
+    assert [(e.action, e.cable) for e in ev] == [("raise", 0)]
+    assert ONSET < ev[0].t < ONSET + 6.0
+
+
+def test_white_noise_keeps_the_consecutive_floor_and_a_gap_restarts_the_lag_anchors():
+    ev, factors, lag_sq = [], [], []
+    for seed in range(20):                           # 20 warm-ups of white noise at 100 Hz
+        rng = np.random.default_rng(100 + seed)
+        t, R = residuals(rng, 100.0, 60.0, 4)
+        det = SpreadDetector(4)
+        ev += det.update_batch(t, R, seq=0)
+        factors += det.noise_factor.tolist()
+        lag_sq += det.describe_state()["floor_lag_sq"]
+    assert ev == [] and factors == [1.0] * 80
+    # the lagged average reads white noise at its level too (300 samples: +-8 % in variance)
+    assert np.sqrt(np.median(lag_sq)) == pytest.approx(NOISE, rel=0.05)
+    assert np.sqrt(max(lag_sq)) < NOISE * NOISE_RATIO
+    # a jump across a gap longer than max_dt_s is no second difference of the noise
+    one = SpreadDetector(1)
+    t1, R1 = residuals(rng, 100.0, 20.0, 1, bias=0.0)
+    one.update_batch(t1, R1)
+    q = one.describe_state()["floor_lag_sq"][0]
+    t2, R2 = residuals(rng, 100.0, 0.5, 1, k0=2100, bias=50.0)        # 1 s later, 50 N higher
+    one.update_batch(t2, R2)
+    assert one.describe_state()["floor_lag_sq"][0] < 2.0 * q
+
+
+def test_a_snapshot_from_before_the_lagged_floor_loads_and_continues_as_before():
+    """An older snapshot has no noise factor: the detector goes on exactly as the detector
+    without the lagged floor would (white noise assumed) until a reset learns it again."""
+    rng = np.random.default_rng(22)
+    m = 2
+    t, R = residuals(rng, 100.0, 60.0, m, effect=friction_on_cable0(m, onset=40.0))
+    det = SpreadDetector(m)
+    det.update_batch(t, R, seq=0)
+    old = det.state_dict()
+    n_old = len(det.state_names) - 5                   # the layout before: without the 5 lag rows
+    assert det.state_names[n_old:] == ("lag_t", "lag_r1", "lag_r2", "floor_lag_sq", "noise_factor")
+    old["state"] = old["state"][:n_old].copy()
+    clone = SpreadDetector(m)
+    clone.load_state_dict(old)
+    ref = SpreadDetector(m, SpreadConfig(noise_lag_s=0.0))
+    ref.load_state_dict(old)
+    assert clone.ready.all() and clone.active.tolist() == [True, False]
+    assert (clone.noise_factor == 1.0).all()
+    t2, R2 = filtered_noise(rng, 100.0, 60.0, m, 5.0, k0=t.size)
+    ev_clone, ev_ref = clone.update_batch(t2, R2, seq=t.size), ref.update_batch(t2, R2, seq=t.size)
+    assert ev_clone == ev_ref
+    np.testing.assert_array_equal(clone.state_dict()["state"][:n_old], ref.state_dict()["state"][:n_old])
+    clone.reset()                                      # e.g. new parameters: the warm-up learns the factor
+    t3, R3 = filtered_noise(rng, 100.0, 40.0, m, 5.0, k0=t.size + t2.size)
+    clone.update_batch(t3, R3, seq=t.size + t2.size)
+    assert clone.noise_correlated.all()
+    with pytest.raises(ValueError, match="does not fit"):
+        clone.load_state_dict({"state": old["state"][:n_old - 1]})
 
 
 def test_decision_time_is_the_same_at_100_hz_and_1_khz():

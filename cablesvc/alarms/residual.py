@@ -124,6 +124,9 @@ class ResidualDetector:
     #: row that is 1 once the cable's warm-up is over, and row that is 1 while its alarm is raised
     ready_row = 0
     active_row = 0
+    #: row counts of this detector's older state layouts, each the head of the current one
+    #: (rows were only ever appended): such a snapshot loads, the rows it lacks at rest
+    older_n_states: tuple[int, ...] = ()
 
     def __init__(self, n_cables: int, config=None, cable_names: Sequence[str] | None = None):
         self.n_cables = m = int(n_cables)
@@ -237,8 +240,15 @@ class ResidualDetector:
 
     def load_state_dict(self, d: dict[str, np.ndarray]) -> None:
         """Continue from :meth:`state_dict`. The state must be of the same cable count; the
-        tuning stays this detector's own config."""
+        tuning stays this detector's own config. A state of an older layout
+        (``older_n_states``) fills the head of this one; the rows it lacks start at rest."""
         S = np.asarray(d["state"], dtype=np.float64)
-        if S.shape != self._S.shape:
+        older = S.ndim == 2 and S.shape[1] == self.n_cables and S.shape[0] in self.older_n_states
+        if S.shape != self._S.shape and not older:
             raise ValueError(f"{self.code} state of shape {S.shape} does not fit {self.n_cables} cables")
+        if older:
+            k = S.shape[0]
+            self.reset()                      # the rows the older layout lacks: at rest
+            self._S[:k] = S
+            return
         self._S[...] = S
