@@ -29,8 +29,33 @@ __all__ = ["noise_floor", "cable_excess", "change_points", "state_variables", "s
            "locate"]
 
 
+#: a lagged estimate is taken only where it stands this many of its standard errors above the
+#: first-difference one: a recording with readings missing here and there keeps few
+#: triplets whole (2 % per force channel leaves a few hundred of 3000), and on those the
+#: 1.2 x of NOISE_RATIO alone is within two standard errors
+NOISE_LAG_SE = 4.0
+#: efficiency of the MAD-based std against the sample std on Gaussian data (0.37): its
+#: relative standard error on n values is 1 / sqrt(2 x 0.37 n)
+_MAD_EFFICIENCY = 0.37
+
+
+def _grid_ticks(t: Optional[np.ndarray], dt: Optional[float]) -> Optional[np.ndarray]:
+    """Each tick's index on the recording's time grid, round((t - t0) / dt), where ``t`` lies
+    on such a grid (within a quarter tick, strictly increasing); None otherwise."""
+    if t is None or dt is None or not dt > 0:
+        return None
+    t = np.asarray(t, float)
+    if t.size < 2 or not np.all(np.isfinite(t)):
+        return None
+    u = (t - t[0]) / dt
+    n = np.rint(u).astype(np.int64)
+    if np.max(np.abs(u - n)) > 0.25 or np.any(np.diff(n) <= 0):
+        return None
+    return n
+
+
 def noise_floor(r: np.ndarray, breaks: Optional[np.ndarray] = None, dt: Optional[float] = None,
-                detail: bool = False) -> Any:
+                detail: bool = False, t: Optional[np.ndarray] = None) -> Any:
     """Sensor-noise std [N] per column of r (N, m). Smooth model errors cancel in a
     difference, sensor noise does not: sigma = std(diff r) / sqrt(2) for white noise. A
     force channel behind a low-pass filter (a load-cell amplifier) has noise whose ticks
@@ -41,36 +66,52 @@ def noise_floor(r: np.ndarray, breaks: Optional[np.ndarray] = None, dt: Optional
     :data:`~cablesvc.noise.NOISE_LAG_S` (r(t + k) - 2 r(t) + r(t - k), robust std / sqrt 6: a
     trajectory's smooth part cancels to second order, the kinks at reversals are outliers)
     and taken where it is more than :data:`~cablesvc.noise.NOISE_RATIO` x the
-    first-difference one (the live ``spread`` alarm does the same, :mod:`cablesvc.noise`);
-    elsewhere the white-noise estimate stands unchanged. ``breaks`` (N,) bool marks the
-    first tick after a gap in time (the kept groups of a streamed long recording): the
-    jumps across gaps are not noise and are left out. ``detail``: also return, per column,
-    whether the lagged estimate was taken (the noise is correlated)."""
+    first-difference one (the live ``spread`` alarm does the same, :mod:`cablesvc.noise`)
+    and more than NOISE_LAG_SE of its standard errors above it; elsewhere the white-noise
+    estimate stands unchanged. ``t`` (N,) [s], the ticks' times on a grid of ``dt`` with the
+    ticks that missed a reading left out: differences and triplets are taken between ticks
+    1 and k grid steps apart, whatever was left out between other ticks. Without ``t``,
+    ``breaks`` (N,) bool marks the first tick after a gap in time (the kept groups of a
+    streamed long recording): the jumps across gaps are not noise and are left out.
+    ``detail``: also return, per column, whether the lagged estimate was taken (the noise
+    is correlated)."""
     r = np.asarray(r, float)
+    grid = _grid_ticks(t, dt)
     d = np.diff(r, axis=0)
-    if breaks is not None:
+    if grid is not None:
+        d = d[np.diff(grid) == 1]
+    elif breaks is not None:
         d = d[~breaks[1:]]
     white = np.std(d, axis=0) / math.sqrt(2.0)
     corr = np.zeros(white.shape, bool)
     k = int(round(NOISE_LAG_S / dt)) if dt is not None and dt > 0 else 0
     if k >= 2 and r.shape[0] > 8 * k:
-        d2 = r[2 * k:] - 2.0 * r[k:-k] + r[:-2 * k]
-        if breaks is not None:              # a triplet that straddles a gap is no difference
-            cs = np.concatenate([[0], np.cumsum(np.asarray(breaks, bool)[1:])])
-            d2 = d2[cs[2 * k:] - cs[:-2 * k] == 0]
+        if grid is not None:                # triplets k and 2 k grid steps apart, all three kept
+            j = np.searchsorted(grid, grid + k)
+            j2 = np.searchsorted(grid, grid + 2 * k)
+            j, j2 = np.minimum(j, grid.size - 1), np.minimum(j2, grid.size - 1)
+            whole = (grid[j] == grid + k) & (grid[j2] == grid + 2 * k)
+            i = np.flatnonzero(whole)
+            d2 = r[j2[i]] - 2.0 * r[j[i]] + r[i]
+        else:
+            d2 = r[2 * k:] - 2.0 * r[k:-k] + r[:-2 * k]
+            if breaks is not None:          # a triplet that straddles a gap is no difference
+                cs = np.concatenate([[0], np.cumsum(np.asarray(breaks, bool)[1:])])
+                d2 = d2[cs[2 * k:] - cs[:-2 * k] == 0]
         if d2.shape[0] > 8:
             lagged = robust_std(d2) / math.sqrt(6.0)      # a reversal's kink does not count
-            corr = lagged > NOISE_RATIO * white
+            se = 1.0 / math.sqrt(2.0 * _MAD_EFFICIENCY * d2.shape[0])
+            corr = lagged > max(NOISE_RATIO, 1.0 + NOISE_LAG_SE * se) * white
             white = np.where(corr, lagged, white)
     return (white, corr) if detail else white
 
 
 def cable_excess(r: np.ndarray, ratio: float = 1.3, breaks: Optional[np.ndarray] = None,
-                 dt: Optional[float] = None) -> list[dict[str, Any]]:
+                 dt: Optional[float] = None, t: Optional[np.ndarray] = None) -> list[dict[str, Any]]:
     """Per cable: RMS, noise floor (:func:`noise_floor`; ``noise_correlated`` where the
     lagged estimate was taken), their ratio and whether it exceeds ``ratio``."""
     rms = np.sqrt(np.mean(r ** 2, axis=0))
-    fl, corr = noise_floor(r, breaks, dt, detail=True)
+    fl, corr = noise_floor(r, breaks, dt, detail=True, t=t)
     return [{"cable": c, "rms": float(rms[c]), "noise": float(fl[c]), "noise_correlated": bool(corr[c]),
              "ratio": float(rms[c] / fl[c]) if fl[c] > 0 else float("inf"),
              "carries_residual": bool(rms[c] > ratio * fl[c])} for c in range(r.shape[1])]
@@ -193,7 +234,7 @@ def frequency_bands(r: np.ndarray, dt: float, edges=(0.0, 0.1, 1.0, 10.0)) -> li
 def locate(s, r: np.ndarray, breaks: Optional[np.ndarray] = None) -> dict[str, Any]:
     """Everything above for the residual r (N, m): JSON-able. ``breaks``: see
     :func:`noise_floor`."""
-    cab = cable_excess(r, breaks=breaks, dt=s.dt)
+    cab = cable_excess(r, breaks=breaks, dt=s.dt, t=s.t)
     flagged = [d["cable"] for d in cab if d["carries_residual"]]
     cps = {c: change_points(s.t, r[:, c], noise=cab[c]["noise"]) for c in flagged}
     regions = state_regions(s, r, flagged)
