@@ -146,8 +146,10 @@ def test_limits_in_the_discovery_report(tmp_path):
     assert all(lines[head + 1 + i].startswith("  " + row["term"] + " (") for i, row in enumerate(d.detection))
     doc = d.to_json()
     assert doc["detection_limits"] == d.detection
-    excess = d.options["model_form_excess_noise_var"]
-    assert excess >= 0.0
+    excess = d.options["model_form_excess_noise_var"]           # per cable, in its noise variances
+    assert len(excess) == 8 and min(excess) >= 0.0
+    # one excess in N^2 for the robot: the same over each cable's noise variance
+    np.testing.assert_allclose(np.array(excess) * d.noise ** 2, excess[0] * d.noise[0] ** 2, rtol=1e-9)
     for row in d.detection:
         for c, lim in row["limit_rms_N"].items():
             free = 1.0 - row["mimicked"][c]
@@ -155,7 +157,8 @@ def test_limits_in_the_discovery_report(tmp_path):
             assert lim >= floor >= sigma * math.sqrt(0.25) * (1 - 1e-9)
             if math.isfinite(lim):      # one required gain each: a perfect baseline's, the model form's
                 assert (floor / sigma) ** 2 * free == pytest.approx(0.25)
-                assert (lim / sigma) ** 2 * free == pytest.approx(BlockScreen().required_gain(excess, excess))
+                ex = excess[int(c)]
+                assert (lim / sigma) ** 2 * free == pytest.approx(BlockScreen().required_gain(ex, ex))
         assert row["min_floor_rms_N"] == min(row["floor_rms_N"].values())
         assert "even with a perfect baseline" in row["words"]
     # the creep's own cable: the limits of every term are there too, named or not

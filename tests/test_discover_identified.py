@@ -557,7 +557,13 @@ def test_block_screen_names_an_effect_that_stands_out_above_the_robots_model_for
     assert screen.required_gain(1.0) == pytest.approx(9.0)
     # the typical excess is the median cable's, beyond the noise, never below 0
     e = {c: [np.full(50, a), np.full(50, a)] for c, a in enumerate((0.1, 0.2, 0.3, 1.0, 0.05))}
-    assert typical_excess(e, np.full(5, 0.1)) == pytest.approx(3.0)     # 0.2 N: 4 noise variances
+    np.testing.assert_allclose(typical_excess(e, np.full(5, 0.1)), 3.0)  # 0.2 N: 4 noise variances
+    # counted in N^2: the same force error of 0.03 N^2 on every cable, three of five cables
+    # with sensors three times as noisy. Counted in each cable's own noise variances the
+    # median was theirs, 0.33, and the quiet cables' ordinary excess of 3 stood 9 x above it
+    noise = np.array([0.1, 0.1, 0.3, 0.3, 0.3])
+    e = {c: [np.full(50, np.sqrt(sg ** 2 + 0.03))] for c, sg in enumerate(noise)}
+    np.testing.assert_allclose(typical_excess(e, noise), 0.03 / noise ** 2)
 
 
 def test_held_out_hold_of_the_recalibration_does_not_depend_on_the_term_beside_it():

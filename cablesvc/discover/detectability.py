@@ -223,7 +223,7 @@ def unmimicked_share(nuisance: np.ndarray, cols: np.ndarray, blocks: Optional[li
 def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list[np.ndarray], noise: np.ndarray,
                      excess: Any, screen: BlockScreen,
                      cache: Optional[DesignCache] = None,
-                     typical: Optional[float] = None) -> dict[tuple[str, int], dict[str, float]]:
+                     typical: Any = None) -> dict[tuple[str, int], dict[str, float]]:
     """Per (term, cable) on which the term applies: ``free`` (share of its signature the
     recalibration ``nuisance`` cannot mimic on held-out ``blocks``, the screen's test units:
     index arrays of ticks), ``floor_rms_N`` and ``limit_rms_N`` (the smallest effect RMS
@@ -235,8 +235,10 @@ def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list
     ``screen`` the :class:`~cablesvc.discover.screen.BlockScreen` whose rule the limits invert
     (:meth:`~cablesvc.discover.screen.BlockScreen.required_gain`); ``cache`` its
     :class:`~cablesvc.discover.select.DesignCache`, so designs are built once; ``typical``
-    the robot's typical excess the screen compared with (None: the share rule alone)."""
+    the robot's typical excess the screen compared with, per cable (m,) or one value for all
+    [noise variances] (None: the share rule alone)."""
     ex = np.broadcast_to(np.asarray(excess, float), (s.m,))
+    typ = None if typical is None else np.broadcast_to(np.asarray(typical, float), (s.m,))
     out: dict[tuple[str, int], dict[str, float]] = {}
     if not blocks:                  # too short for a single test block: nothing to say
         return out
@@ -245,7 +247,7 @@ def detection_limits(s: Signals, terms: list[Term], nuisance: Term, blocks: list
     mask, local = _block_rows(s, blocks)
 
     for c in range(s.m):
-        need = screen.required_gain(float(ex[c]), typical)
+        need = screen.required_gain(float(ex[c]), None if typ is None else float(typ[c]))
         fitter = _nuisance_fit(s, nuisance, c, mask, local, cache)
         for t in terms:
             if not t.applies(s, c):

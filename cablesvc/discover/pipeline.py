@@ -972,10 +972,13 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     un_p, un_test, left = {}, {}, np.zeros_like(r)
     for c in range(m):
         left[:, c] = r[:, c] - full[c].pred
-    typical = float(np.median([np.mean(np.concatenate(errs[c]) ** 2) / noise[c] ** 2 - 1.0 for c in range(m)]))
-    floor = max(UNEXPLAINED_FLOOR, UNEXPLAINED_OVER_TYPICAL * max(typical, 0.0))
+    # the robot's typical excess in N^2 (a force error of one cable law, whatever each
+    # sensor's noise), over each cable's noise variance (as :func:`typical_excess`)
+    typical_n2 = float(np.median([np.mean(np.concatenate(errs[c]) ** 2) - noise[c] ** 2 for c in range(m)]))
+    typical = max(typical_n2, 0.0) / np.maximum(noise, 1e-12) ** 2
+    floor = np.maximum(UNEXPLAINED_FLOOR, UNEXPLAINED_OVER_TYPICAL * typical)
     for c in range(m):
-        un_test[c] = excess_test(errs[c], noise[c], floor)
+        un_test[c] = excess_test(errs[c], noise[c], float(floor[c]))
         un_p[c] = un_test[c]["p"]
     un_adj = holm(un_p, m)
     # a residual that repeats with the cable's travel (a turning part: drum or pulley
@@ -1022,7 +1025,7 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     # leaves what it leaves on the median cable (its model form: a cable's own excess
     # holds its own effect); reported for the terms not named (dead time is judged by the
     # forces' balance where it holds, which the recalibration cannot mimic)
-    model_form_excess = sel.typical         # the screen's typical excess (the median cable's)
+    model_form_excess = sel.typical         # the screen's typical excess (the median cable's, per cable)
     limits = detection_limits(s, cands, nuis, blocks, noise, model_form_excess, screen, cache, model_form_excess)
     skip = set(named) | ({lag.name} if (eq["holds"] and lag is not None) else set())
     detection = describe_limits(limits, skip=skip, labels={t.name: t.label for t in cands})
@@ -1031,9 +1034,9 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                 "model_form_confirmed": {f"{n}@{c}": dict(v) for (n, c), v in sel.confirmed.items()},
                 "model_form_refused": {f"{n}@{c}": dict(v) for (n, c), v in sel.refused.items()},
                 "share_min": screen.share_min, "gain_min": screen.gain_min,
-                "unexplained_floor_noise_var": floor, "typical_excess_noise_var": typical,
+                "unexplained_floor_noise_var": floor.tolist(), "typical_excess_noise_var": typical.tolist(),
                 "travel_probe": {str(c): v for c, v in probes.items()},
-                "model_form_excess_noise_var": model_form_excess,
+                "model_form_excess_noise_var": np.asarray(model_form_excess, float).tolist(),
                 "limits": {f"{n}@{c}": {"free": v["free"], "floor_rms_N": v["floor_rms_N"],
                                         "limit_rms_N": v["limit_rms_N"], "need_noise_var": v["need_noise_var"]}
                            for (n, c), v in limits.items()}}

@@ -157,18 +157,26 @@ from cablesvc.models.terms import Signals, Term
 __all__ = ["BlockScreen", "ScreenResult", "typical_excess"]
 
 
-def typical_excess(errors: dict[int, list[np.ndarray]], noise: np.ndarray) -> float:
-    """The median over cables of what held-out ``errors`` (per cable, per block) leave
-    beyond the noise variance, in noise variances (0 at least per cable; per cable the
-    ``before`` of :func:`~cablesvc.discover.evidence.block_gain_test`, minus 1): the
-    robot's typical excess, the baseline's model form where fewer than half its cables
-    carry an effect."""
+def typical_excess(errors: dict[int, list[np.ndarray]], noise: np.ndarray) -> np.ndarray:
+    """The robot's typical excess, per cable in that cable's noise variances (m,): the
+    median over cables of what held-out ``errors`` (per cable, per block) leave beyond the
+    noise variance, counted in N^2 (0 at least per cable; per cable the ``before`` of
+    :func:`~cablesvc.discover.evidence.block_gain_test`, minus 1, times its noise
+    variance), over each cable's noise variance. It is the baseline's model form where
+    fewer than half the robot's cables carry an effect. The model form is a force error of
+    one cable law, the same in newtons on every cable whatever its sensor's noise: counted
+    in each cable's own noise variances, a robot whose force channels have noises 0.1-0.3 N
+    put the median among the noisy cables, and a quiet cable's ordinary model form stood
+    out above it. With one noise on every cable it is the median of the excesses in noise
+    variances, as before."""
+    m = len(noise)
+    var = np.maximum(np.asarray(noise, float), 1e-12) ** 2
     ex = []
     for c, e in errors.items():
         if e:
-            var = max(float(noise[c]), 1e-12) ** 2
-            ex.append(max(float(np.mean([float(np.mean(a * a)) / var for a in e])) - 1.0, 0.0))
-    return float(np.median(ex)) if ex else 0.0
+            ex.append(max(float(np.mean([float(np.mean(a * a)) for a in e])) - var[c], 0.0))
+    t = float(np.median(ex)) if ex else 0.0
+    return np.full(m, t) / var if m else np.zeros(0)
 
 
 @dataclass
@@ -184,7 +192,8 @@ class ScreenResult(Selection):
     joint: dict = field(default_factory=dict)
     tries: int = 0
     blocks: list = field(default_factory=list)
-    typical: float = 0.0
+    #: the robot's typical excess per cable, in its noise variances (:func:`typical_excess`)
+    typical: Any = 0.0
     #: (term, cable) kept and refused by step 4: the block test of the cable's model with
     #: the term against the model with a model-form alternative of the nuisance in its place
     #: (``gain`` [noise variances] how much better the term does, ``p``, ``alternative``:
@@ -351,7 +360,7 @@ class BlockScreen:
         for k, v in tests.items():
             v["p_holm"] = adj[k]
             # beside a term the outside evidence placed on the cable, a term is a further one
-            v["passed"] = self._ok(v, adj[k], further=bool(pre[k[1]]), typical=typ) or k in evidence
+            v["passed"] = self._ok(v, adj[k], further=bool(pre[k[1]]), typical=typ[k[1]]) or k in evidence
             if k in evidence:
                 v["evidence"] = dict(evidence[k])
 
@@ -392,7 +401,7 @@ class BlockScreen:
             # correction at the screen's full count of tries keeps it as strict as the first
             jt, h = beside(n, c)
             jt["p_holm"] = min(1.0, jt["p"] * tries)
-            jt["passed"] = self._ok(jt, jt["p_holm"], further=True, typical=typ)
+            jt["passed"] = self._ok(jt, jt["p_holm"], further=True, typical=typ[c])
             joint[(n, c)] = jt
             if jt["passed"]:
                 keep(n, c, h)
