@@ -220,6 +220,8 @@ class LevelFit:
     model: np.ndarray              # (T, m_fit) fitted model [N] (the kernel model run)
     t: np.ndarray                  # (T,) [s]
     data: list[LevelData] = field(default_factory=list, repr=False)   # per cable
+    #: (m_fit,) bool: the level could not tell alpha (:func:`_alpha_unidentified`); fitted at 0
+    alpha_fixed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     @property
     def rmse(self) -> np.ndarray:
@@ -237,6 +239,27 @@ def lin_solve(Phi: np.ndarray, y: np.ndarray) -> np.ndarray:
     if np.linalg.cond(G) < 1e10:
         return np.linalg.solve(G, g) / sc
     return np.linalg.lstsq(Phi / sc, y, rcond=None)[0] / sc
+
+
+#: chi-square(1) 95 % quantile: the variable projection's profile ss(alpha) - min ss, in
+#: units of the residual variance, under which alpha values are not told apart (Wilks)
+ALPHA_PROFILE_CHI2 = 3.841
+
+
+def _alpha_unidentified(profile: np.ndarray, n: int) -> bool:
+    """Whether the profile ss(alpha) [N^2] over the alpha grid of a level of ``n`` samples
+    stays within ALPHA_PROFILE_CHI2 residual variances of its minimum everywhere: every
+    alpha of the grid is then inside the 95 % profile-likelihood interval, and the level
+    cannot tell the damping's rate law (a triangle wave: |v| constant within the level, so
+    |v|^alpha is a constant S_a takes). Left to the fit, alpha then lands anywhere in its
+    range (0 or 2 on a triangle calibration of the realistic bench), and a level's alpha of
+    2 made the damping force of the identified model (|v| T / (pi A))^2 S_a q / A run to
+    hundreds of newtons when it next moved after a long hold."""
+    lo = float(np.min(profile))
+    if not np.isfinite(lo) or n <= 7:
+        return False
+    s2 = lo / (n - 6)
+    return bool(s2 > 0 and float(np.max(profile)) - lo <= ALPHA_PROFILE_CHI2 * s2)
 
 
 def _level_linear(d: LevelData, alpha: float) -> np.ndarray:
@@ -283,6 +306,7 @@ def fit_levels(t: np.ndarray, x: np.ndarray, force: np.ndarray, levels: list[Lev
     results = []
     data = []
     theta = np.zeros((m, 6))
+    alpha_fixed = np.zeros(m, dtype=bool)
     for c in range(m):
         r = np.flatnonzero(mask[:, c])
         d = LevelData(amplitude=float(A[c]), xi=xi[r, c].copy(), y=Fm[r, c].copy(), base=base[r, c].copy(),
@@ -290,13 +314,37 @@ def fit_levels(t: np.ndarray, x: np.ndarray, force: np.ndarray, levels: list[Lev
         data.append(d)
         # 1) variable projection on an alpha grid
         best = (np.inf, None)
+        profile = []
         for a in alpha_grid:
             coef = _level_linear(d, float(a))
             Dg = damping_regressor(d.base, d.pref, float(a))
             ss = float(np.sum((coef[0] + d.xi * (coef[1] + d.xi * (coef[2] + d.xi * coef[3])) + coef[4] * Dg
                                - d.y) ** 2))
+            profile.append(ss)
             if ss < best[0]:
                 best = (ss, np.append(coef, a))
+        if _alpha_unidentified(np.array(profile), d.y.size):
+            # the level cannot tell the damping's rate law (a triangle's speed is constant
+            # within a level, so |v|^alpha is one constant S_a takes): rate-independent
+            th = _level_linear(d, 0.0)
+            th = np.append(th, 0.0)
+            Bm = np.stack([np.ones(d.xi.size), d.xi, d.xi ** 2, d.xi ** 3], axis=1)
+            Dg = damping_regressor(d.base, d.pref, 0.0)
+            Jc = np.column_stack([Bm, Dg, np.zeros(d.xi.size)])
+            rc = Bm @ th[:4] + th[4] * Dg - d.y
+            st = jacobian_statistics(Jc, rc, names=names, x=th)
+            theta[c] = th
+            alpha_fixed[c] = True
+            results.append(IdentifyResult(
+                x=th, fun=0.5 * float(rc @ rc), nfev=len(alpha_grid), nit=0, success=True,
+                message=("alpha not identifiable at this level (the variable projection's profile over alpha "
+                         f"{alpha_grid[0]:g}..{alpha_grid[-1]:g} stays within the 95 % bound): alpha = 0, "
+                         "a rate-independent loop"),
+                names=names, history=np.array(profile), jac=Jc, residual=rc, stderr=st.stderr,
+                covariance=st.covariance, correlation=st.correlation, cond=st.cond, cond_raw=st.cond_raw,
+                sigma2=st.sigma2, redundant=st.groups, method="varpro (alpha fixed at 0)",
+                rmse=float(np.sqrt(np.mean(rc ** 2)))))
+            continue
         th0 = best[1].copy()
         th0[5] = np.clip(th0[5], 1e-6, ALPHA_MAX - 1e-6)
         th0[4] = max(th0[4], 1e-300)
@@ -335,4 +383,4 @@ def fit_levels(t: np.ndarray, x: np.ndarray, force: np.ndarray, levels: list[Lev
                                xc, A, Th, rising)[:, 0, :]
     return LevelFit(amplitude=A, levels=list(levels), results=results, x=np.where(mask, X, np.nan),
                     force=np.where(mask, Fm, np.nan), model=np.where(mask, F_fit, np.nan), t=np.arange(T) * dt,
-                    data=data)
+                    data=data, alpha_fixed=alpha_fixed)
