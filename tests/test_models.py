@@ -11,7 +11,7 @@ from cablesvc.models import (
     MODELS, AmplitudeDependent, AsymmetricBoucWen, BoucWen, LinearElastic, ModelParameterError,
     PolynomialHysteresis, bouc_wen_bound, from_benchmark, loop_area, simulate, to_benchmark,
 )
-from cablesvc.models.amplitude import sine_power_integral
+from cablesvc.models.amplitude import damping_normaliser, sine_power_integral
 from cablesvc.models.boucwen import from_nondimensional, to_nondimensional
 
 BW = dict(k_e=2e3, k_d=4e4, beta=3e3, gamma=1e3, n=1.5)
@@ -239,6 +239,28 @@ def test_amplitude_holds_force_at_rest():
     f = simulate(m, x, 1e-3)
     assert np.all(np.isfinite(f))
     assert np.max(np.abs(np.diff(f[1250:]))) < 1e-9
+
+
+@pytest.mark.parametrize("alpha", [0.4, 1.5])
+def test_amplitude_damping_after_a_long_hold_stays_at_the_sines(alpha):
+    """The online w = pi / T_h is stale after a hold (T_h spans it until two reversals have
+    passed): resumed after 120 s, the normalised speed |v| / (A w) was ~100 x its sine value
+    and (|v| / (A w))^alpha put tens to hundreds of newtons of damping on the first move. It
+    is held at a sine's peak, the most a calibration shows: the first 4 s after the hold
+    differ from the same sine without it by no more than the damping at that peak."""
+    dt, A, f = 0.01, 1e-3, 0.5
+    kw = dict(amplitudes=[1e-4, 1.5e-3], K0=60.0, K1=1.6e4, S_a=[1e-4, 1e-2], alpha=alpha, x_center=4e-3,
+              amplitude_init=A, omega_init=2 * np.pi * f)
+
+    def run(hold):
+        t = np.arange(0.0, 14.0 + hold, dt)
+        s = np.where(t < 10.0, np.sin(2 * np.pi * f * t), np.where(t < 10.0 + hold, 0.0,
+                                                                     np.sin(2 * np.pi * f * (t - 10.0 - hold))))
+        force = simulate(AmplitudeDependent(**kw), 4e-3 + A * s, dt)
+        return force[t >= 10.0 + hold]
+    peak = np.interp(A, [1e-4, 1.5e-3], [1e-4, 1e-2]) * damping_normaliser(np.array(alpha)) / A
+    dev = np.max(np.abs(run(120.0) - run(0.0)))
+    assert dev <= 2.0 * peak + 1e-9, (dev, peak)
 
 
 # ---- polynomial model ---------------------------------------------------------------

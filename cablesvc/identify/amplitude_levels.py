@@ -21,7 +21,7 @@ from cablesvc.identify.identifiability import jacobian_statistics
 from cablesvc.identify.local import refine
 from cablesvc.identify.result import IdentifyResult
 from cablesvc.models import AmplitudeDependent
-from cablesvc.models.amplitude import damping_normaliser
+from cablesvc.models.amplitude import SPEED_RATIO_MAX, damping_normaliser
 from cablesvc.models.reversal import reversal_points
 from cablesvc.robust import robust_std
 
@@ -142,7 +142,7 @@ def level_trace(x: np.ndarray, dt: float, x_center: np.ndarray, amplitude: np.nd
     kernel's damping force is ``S_a q(alpha) / A' (|dx| T_h / (dt pi A'))^alpha sgn`` with its
     online amplitude estimate A' (floored at the table's smallest amplitude), half period
     T_h and direction sgn, which depend on the elongation only. Returns ``(base, pref)``
-    (T, m) with ``base = |dx| T_h / (max(dt, 1e-12) pi A')`` and ``pref = sgn / A'`` so
+    (T, m) with ``base = min(|dx| T_h / (max(dt, 1e-12) pi A'), SPEED_RATIO_MAX)`` and ``pref = sgn / A'`` so
     that the damping force per unit S_a is :func:`damping_regressor` ``(base, pref, alpha)``."""
     m = x.shape[1]
     A = np.asarray(amplitude, float)
@@ -171,7 +171,7 @@ def level_trace(x: np.ndarray, dt: float, x_center: np.ndarray, amplitude: np.nd
     dx = np.abs(np.diff(xs, axis=0, prepend=xs[:1]))
     dts = np.full((T, 1), max(dt, 1e-12))
     dts[0] = 1e-12
-    base = dx * Th / (dts * np.pi * aeff)
+    base = np.minimum(dx * Th / (dts * np.pi * aeff), SPEED_RATIO_MAX)      # as the kernel holds it
     return base, sg / aeff
 
 

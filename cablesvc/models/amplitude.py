@@ -19,6 +19,15 @@ NOMINAL_AMPLITUDES = (1e-4, 2.5e-4, 5e-4, 1e-3, 1.5e-3)
 GRID_POINTS = 1024
 #: default |xi| limit of the backbone's polynomial part [m]: no limit in practice
 XI_UNBOUNDED = 1.0
+#: largest normalised speed |v| / (A w) the damping law is evaluated at: a sine's peak, the
+#: most 002 Sec 4's calibration shows it (|v| / (A w) = |sin|). Beyond it the damping is held
+#: at its value there, as the tables hold their end values beyond the amplitude range. The
+#: online w = pi / T_h is stale after a hold (T_h then spans the hold): resuming a 1 mm,
+#: 0.5 Hz sine after a 120 s hold, sine-calibrated baselines of the realistic bench (robot 0
+#: of fleet 161803) were 30-255 N off the same sine without the hold over its first 4 s
+#: with alpha 1.1-1.5 (Bouc-Wen truth) and 3.7-10.8 N with alpha 0.3-0.5; held, 0.09-0.18 N
+#: and 0.9-1.5 N
+SPEED_RATIO_MAX = 1.0
 
 
 def sine_power_integral(alpha: np.ndarray) -> np.ndarray:
@@ -126,7 +135,10 @@ class AmplitudeDependent(CableModel):
 
     A and w are estimated online from the last reversal points of the elongation:
     A = |last reversal point - the one before| / 2 and w = pi / (time between the last two
-    reversals). Until two reversals have been seen, ``amplitude_init`` and
+    reversals). The normalised speed |v| / (A w) is held at most SPEED_RATIO_MAX (1, a
+    sine's peak, the most a calibration by 002 Sec 4's sines shows): after a hold, w is
+    stale until two reversals have passed, and (|v| / (A w))^alpha ran to hundreds of
+    newtons of damping on the first move. Until two reversals have been seen, ``amplitude_init`` and
     ``omega_init`` are used. A reversal is declared when the elongation has moved back by
     more than ``reversal_deadband`` [m] from the extremum of the current half-cycle, and
     the reversal point and time are that extremum's (:mod:`cablesvc.models.reversal`):
@@ -325,6 +337,7 @@ class AmplitudeDependent(CableModel):
         self._dx, self._nd, self._e, self._u, self._xi, self._p, self._r, self._aeff = (
             e(), e(), e(), e(), e(), e(), e(), e())
         self._bb_scratch = (e(), e())
+        self._speed_max = np.full(sh, SPEED_RATIO_MAX)     # an operand of the step's shape: nothing allocated
         self._rev = np.empty(sh, dtype=bool)
         self._newext = np.empty(sh, dtype=bool)
         self._idx = np.empty(sh, dtype=np.intp)
@@ -390,11 +403,13 @@ class AmplitudeDependent(CableModel):
         xi, p = self._xi, self._p
         sub(x, self.params["x_center"], xi)
         backbone(xi, K0, K1, K2, K3, out=p, lo=self._xi_lo, hi=self._xi_hi, scratch=self._bb_scratch)
-        # damping S_a q / A (|v| / (A w))^alpha sgn(v), with |v| / (A w) = |dx| T_half / (dt pi A)
+        # damping S_a q / A (|v| / (A w))^alpha sgn(v), with |v| / (A w) = |dx| T_half / (dt pi A),
+        # held at SPEED_RATIO_MAX
         np.absolute(dx, r)
         mul(r, T, r)
         mul(aeff, max(dt, 1e-12) * np.pi, e)
         np.divide(r, e, r)
+        np.minimum(r, self._speed_max, out=r)
         np.power(r, alpha, r)
         mul(r, Sq, r)
         np.divide(r, aeff, r)
