@@ -16,6 +16,7 @@ from cablesvc.bench.discover_cases import (
     calibrated_robot,
     case_plan,
     make_realistic_case,
+    planned_case,
 )
 from cablesvc.bench.truth import OOL_EFFECTS, apply_effects, equilibrium_run
 
@@ -281,9 +282,8 @@ def test_balance_search_enters_the_best_accepted_explanation_not_the_largest_gai
     from cablesvc.discover.equilibrium import equilibrium_check
     spec = case_plan(40, 90210)[32]
     assert spec.names == ["deadtime"]
-    sr = calibrated_robot(spec.robot_index, 90210)
-    case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
-                               rng=np.random.default_rng([90210, 7, spec.index]))
+    case = planned_case(spec, 90210)
+    sr = case.robot
     truth = case.truth["effects"][0]
     rec = case.recording
     eq = equilibrium_check(sr.geom, rec.t, rec.position, rec.orientation, rec.force,
@@ -305,9 +305,8 @@ def test_balance_search_offers_an_offset_and_a_lag_on_one_cable_together():
     from cablesvc.discover.equilibrium import equilibrium_check
     spec = case_plan(40, 90210, damping=0.2)[50]
     assert sorted(spec.names) == ["deadtime", "offset_gain"]
-    sr = calibrated_robot(spec.robot_index, 90210, 0.2)
-    case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
-                               rng=np.random.default_rng([90210, 7, spec.index]))
+    case = planned_case(spec, 90210)
+    sr = case.robot
     eff = {e["name"]: e for e in case.truth["effects"]}
     rec = case.recording
     eq = equilibrium_check(sr.geom, rec.t, rec.position, rec.orientation, rec.force,

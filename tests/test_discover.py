@@ -231,15 +231,13 @@ def test_a_filtered_sensors_noise_does_not_hide_a_sensor_offset():
     # sensor columns, was left at 3.6 noise variances per row on held-out blocks (1.5
     # holds), so the balance was not trusted and nothing was named (1.05 with the level
     # measured 0.1 s apart)
-    from cablesvc.bench.discover_cases import calibrated_robot, case_plan, make_realistic_case
+    from cablesvc.bench.discover_cases import case_plan, planned_case
 
     seed = 57721
     spec = case_plan(40, seed, 4, 1.0, 30.0, "envelope", noise_filter_hz=5.0)[6]
     assert spec.names == ["offset_gain"] and spec.noise_filter_hz == 5.0
-    sr = calibrated_robot(spec.robot_index, seed, spec.damping, spec.hysteresis)
-    case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
-                               rng=np.random.default_rng([seed, 7, spec.index]), duration=spec.duration,
-                               noise_filter_hz=spec.noise_filter_hz)
+    case = planned_case(spec, seed)
+    sr = case.robot
     assert case.truth["cables"] == [2]
     d = discover(case.recording, sr.robot, case.baseline)
     assert all(c["noise_correlated"] for c in d.location["cables"])
@@ -256,14 +254,13 @@ def test_readings_missing_here_and_there_do_not_make_the_noise_look_correlated()
     # came out 1.2-1.5 x the first-difference one on one cable: its noise was read at
     # 0.12-0.15 N. Taken between ticks 10 grid steps apart (all the 0.1 s triplets that
     # are whole) and only 4 standard errors above, it is read at its level
-    from cablesvc.bench.discover_cases import calibrated_robot, case_plan, make_realistic_case
+    from cablesvc.bench.discover_cases import case_plan, planned_case
 
     seed = 161803
     spec = case_plan(40, seed, 4, 1.0, 30.0, "envelope")[80]
     assert spec.kind == "control"
-    sr = calibrated_robot(spec.robot_index, seed, spec.damping, spec.hysteresis)
-    case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
-                               rng=np.random.default_rng([seed, 7, spec.index]), duration=spec.duration)
+    case = planned_case(spec, seed)
+    sr = case.robot
     rec = case.recording
     rng = np.random.default_rng(1)
     worst = 0.0

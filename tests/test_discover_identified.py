@@ -654,16 +654,15 @@ def test_a_term_the_cables_own_loop_explains_as_well_is_not_named():
     # a creep and a sag on the two cables that show most of it. Each must also beat the
     # recalibration with the loop's stops on its cable; neither does, and the report says
     # why they are not named
-    from cablesvc.bench.discover_cases import calibrated_robot, case_plan, make_realistic_case
+    from cablesvc.bench.discover_cases import case_plan, planned_case
     from cablesvc.discover.screen import BlockScreen
     from cablesvc.models.terms import Recalibration, library
 
     seed = 13579
     spec = case_plan(40, seed, 4, 1.0, 30.0, "boucwen")[81]
     assert spec.kind == "control"
-    sr = calibrated_robot(spec.robot_index, seed, spec.damping, spec.hysteresis)
-    case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
-                               rng=np.random.default_rng([seed, 7, spec.index]), duration=spec.duration)
+    case = planned_case(spec, seed)
+    sr = case.robot
     d = discover(case.recording, sr.robot, case.baseline)
     assert not d.recalibration["loop"]["used"]
     refused = d.options["model_form_refused"]
@@ -721,15 +720,14 @@ def test_the_term_that_does_better_block_after_block_is_kept_first(monkeypatch):
     # head to head, and is the one kept. Kept by the mean gain alone, the pulley friction
     # went in first, the temperature then explained nothing beside it, and the report
     # named the wrong mechanism
-    from cablesvc.bench.discover_cases import calibrated_robot, case_plan, make_realistic_case
+    from cablesvc.bench.discover_cases import case_plan, planned_case
     from cablesvc.discover.screen import BlockScreen
 
     seed = 86420
     spec = case_plan(40, seed, 4, 1.0, 30.0, "envelope")[23]
     assert spec.kind == "single" and spec.names == ["temperature"]
-    sr = calibrated_robot(spec.robot_index, seed, spec.damping, spec.hysteresis)
-    case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
-                               rng=np.random.default_rng([seed, 7, spec.index]), duration=spec.duration)
+    case = planned_case(spec, seed)
+    sr = case.robot
     assert 0 in case.truth["cables"]
     d = discover(case.recording, sr.robot, case.baseline)
     tests = d.options["tests"]
@@ -748,12 +746,11 @@ def test_the_term_that_does_better_block_after_block_is_kept_first(monkeypatch):
 def _bench_case(seed, hysteresis, idx):
     """Case ``idx`` of the realistic bench's 40-case plan of ``seed`` on the truth
     ``hysteresis``, as ``cablesvc bench discover`` makes it: (spec, case, discovery)."""
-    from cablesvc.bench.discover_cases import calibrated_robot, case_plan, make_realistic_case
+    from cablesvc.bench.discover_cases import case_plan, planned_case
 
     spec = case_plan(40, seed, 4, 1.0, 30.0, hysteresis)[idx]
-    sr = calibrated_robot(spec.robot_index, seed, spec.damping, spec.hysteresis)
-    case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
-                               rng=np.random.default_rng([seed, 7, spec.index]), duration=spec.duration)
+    case = planned_case(spec, seed)
+    sr = case.robot
     return spec, case, discover(case.recording, sr.robot, case.baseline)
 
 

@@ -247,12 +247,10 @@ def _realistic_row(spec: Any, seed: int) -> dict[str, Any]:
     """Simulate, calibrate (once per robot and process) and discover one planned case;
     the per-case row of :func:`run_realistic`. A top-level function, so that worker
     processes can run it."""
-    from cablesvc.bench.discover_cases import NOISE as RN, calibrated_robot, make_realistic_case
+    from cablesvc.bench.discover_cases import NOISE as RN, planned_case
     from cablesvc.discover import discover
-    sr = calibrated_robot(spec.robot_index, seed, spec.damping, spec.hysteresis)
-    case = make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
-                               rng=np.random.default_rng([seed, 7, spec.index]), duration=spec.duration,
-                               noise_filter_hz=getattr(spec, "noise_filter_hz", None))
+    case = planned_case(spec, seed)
+    sr = case.robot
     t1 = time.perf_counter()
     d = discover(case.recording, sr.robot, case.baseline)
     td = time.perf_counter() - t1

@@ -472,6 +472,17 @@ def case_plan(cases: int = 40, seed: int = 0, fleet: int = 4, damping: float = 1
     return out
 
 
+def planned_case(spec: CaseSpec, seed: int) -> RealisticCase:
+    """Simulate the planned case ``spec`` of :func:`case_plan` with ``seed`` (the plan's
+    seed, which is also the fleet's): its robot calibrated (once per process), its draws of
+    cables and magnitudes from [seed, 7, index]. What the bench runs for every case, and
+    what a test that replays one bench case builds."""
+    sr = calibrated_robot(spec.robot_index, seed, spec.damping, spec.hysteresis)
+    return make_realistic_case(spec.kind, spec.names, spec.seed, robot=sr,
+                               rng=np.random.default_rng([seed, 7, spec.index]), duration=spec.duration,
+                               noise_filter_hz=spec.noise_filter_hz)
+
+
 def iter_cases(cases: int = 40, seed: int = 0, fleet: int = 4) -> Iterator[RealisticCase]:
     """Yield the cases of :func:`case_plan` (robots of fleet ``seed``, calibrated on first use)."""
     for spec in case_plan(cases, seed, fleet):
