@@ -323,31 +323,6 @@ def fit_levels(t: np.ndarray, x: np.ndarray, force: np.ndarray, levels: list[Lev
             profile.append(ss)
             if ss < best[0]:
                 best = (ss, np.append(coef, a))
-        if _alpha_unidentified(np.array(profile), d.y.size):
-            # the level cannot tell the damping's rate law (a triangle's speed is constant
-            # within a level, so |v|^alpha is one constant S_a takes): rate-independent
-            th = _level_linear(d, 0.0)
-            th = np.append(th, 0.0)
-            Bm = np.stack([np.ones(d.xi.size), d.xi, d.xi ** 2, d.xi ** 3], axis=1)
-            Dg = damping_regressor(d.base, d.pref, 0.0)
-            Jc = np.column_stack([Bm, Dg, np.zeros(d.xi.size)])
-            rc = Bm @ th[:4] + th[4] * Dg - d.y
-            st = jacobian_statistics(Jc, rc, names=names, x=th)
-            theta[c] = th
-            alpha_fixed[c] = True
-            results.append(IdentifyResult(
-                x=th, fun=0.5 * float(rc @ rc), nfev=len(alpha_grid), nit=0, success=True,
-                message=("alpha not identifiable at this level (the variable projection's profile over alpha "
-                         f"{alpha_grid[0]:g}..{alpha_grid[-1]:g} stays within the 95 % bound): alpha = 0, "
-                         "a rate-independent loop"),
-                names=names, history=np.array(profile), jac=Jc, residual=rc, stderr=st.stderr,
-                covariance=st.covariance, correlation=st.correlation, cond=st.cond, cond_raw=st.cond_raw,
-                sigma2=st.sigma2, redundant=st.groups, method="varpro (alpha fixed at 0)",
-                rmse=float(np.sqrt(np.mean(rc ** 2)))))
-            continue
-        th0 = best[1].copy()
-        th0[5] = np.clip(th0[5], 1e-6, ALPHA_MAX - 1e-6)
-        th0[4] = max(th0[4], 1e-300)
         B = np.stack([np.ones(d.xi.size), d.xi, d.xi ** 2, d.xi ** 3], axis=1)
 
         def residuals(th, d=d, B=B):
@@ -357,27 +332,44 @@ def fit_levels(t: np.ndarray, x: np.ndarray, force: np.ndarray, levels: list[Lev
             D, dD = damping_regressor(d.base, d.pref, th[5], derivative=True)
             return np.column_stack([B, D, th[4] * dD])
 
-        # 2) least-squares refinement of all six (002 eqs 12-14), analytic Jacobian
-        kw = {} if max_nfev is None else {"max_nfev": max_nfev}
-        # LM is unbounded: a step may take alpha far out of range (to inf on a loop the law
-        # fits poorly), which overflows the regressor; such a result is refitted bounded
-        # below, so its floating-point warnings are not the user's concern
-        with np.errstate(over="ignore", invalid="ignore"):
-            res = refine(residuals, th0, None, method="lm", jac=jac, statistics=False, **kw)
-        th = np.asarray(res.x, float).copy()
-        if not (0.0 <= th[5] <= ALPHA_MAX):                # LM is unbounded: keep alpha in range
-            res = refine(residuals, th0, ([-np.inf] * 4 + [0.0, 0.0], [np.inf] * 5 + [ALPHA_MAX]), method="trf",
-                         jac=jac, statistics=False, **kw)
+        alpha_fixed[c] = _alpha_unidentified(np.array(profile), d.y.size)
+        if alpha_fixed[c]:
+            # the level cannot tell the damping's rate law (a triangle's speed is constant
+            # within a level, so |v|^alpha is one constant S_a takes): rate-independent
+            th = np.append(_level_linear(d, 0.0), 0.0)
+            run = dict(nfev=len(alpha_grid), nit=0, success=True, history=np.array(profile),
+                       method="varpro (alpha fixed at 0)",
+                       message=("alpha not identifiable at this level (the variable projection's profile over "
+                                f"alpha {alpha_grid[0]:g}..{alpha_grid[-1]:g} stays within the 95 % bound): "
+                                "alpha = 0, a rate-independent loop"))
+        else:
+            th0 = best[1].copy()
+            th0[5] = np.clip(th0[5], 1e-6, ALPHA_MAX - 1e-6)
+            th0[4] = max(th0[4], 1e-300)
+            # 2) least-squares refinement of all six (002 eqs 12-14), analytic Jacobian
+            kw = {} if max_nfev is None else {"max_nfev": max_nfev}
+            # LM is unbounded: a step may take alpha far out of range (to inf on a loop the law
+            # fits poorly), which overflows the regressor; such a result is refitted bounded
+            # below, so its floating-point warnings are not the user's concern
+            with np.errstate(over="ignore", invalid="ignore"):
+                res = refine(residuals, th0, None, method="lm", jac=jac, statistics=False, **kw)
             th = np.asarray(res.x, float).copy()
-        th[:5] = _level_linear(d, float(th[5]))           # exact linear part at the final alpha
+            if not (0.0 <= th[5] <= ALPHA_MAX):                # LM is unbounded: keep alpha in range
+                res = refine(residuals, th0, ([-np.inf] * 4 + [0.0, 0.0], [np.inf] * 5 + [ALPHA_MAX]),
+                             method="trf", jac=jac, statistics=False, **kw)
+                th = np.asarray(res.x, float).copy()
+            th[:5] = _level_linear(d, float(th[5]))           # exact linear part at the final alpha
+            run = dict(nfev=res.nfev, nit=res.nit, success=res.success, message=res.message,
+                       history=res.history, method="varpro+least_squares/lm")
         Jc, rc = jac(th), residuals(th)
+        if alpha_fixed[c]:
+            Jc[:, 5] = 0.0                                  # alpha held, not estimated
         st = jacobian_statistics(Jc, rc, names=names, x=th)
         theta[c] = th
         results.append(IdentifyResult(
-            x=th, fun=0.5 * float(rc @ rc), nfev=res.nfev, nit=res.nit, success=res.success, message=res.message,
-            names=names, history=res.history, jac=Jc, residual=rc, stderr=st.stderr, covariance=st.covariance,
-            correlation=st.correlation, cond=st.cond, cond_raw=st.cond_raw, sigma2=st.sigma2, redundant=st.groups,
-            method="varpro+least_squares/lm", rmse=float(np.sqrt(np.mean(rc ** 2)))))
+            x=th, fun=0.5 * float(rc @ rc), names=names, jac=Jc, residual=rc, stderr=st.stderr,
+            covariance=st.covariance, correlation=st.correlation, cond=st.cond, cond_raw=st.cond_raw,
+            sigma2=st.sigma2, redundant=st.groups, rmse=float(np.sqrt(np.mean(rc ** 2))), **run))
     # the fitted force from the kernel model itself (not the regressor shortcut)
     F_fit = simulate_amplitude(X, dt, {k: theta[:, j][None, :].copy() for j, k in enumerate(names)},
                                xc, A, Th, rising)[:, 0, :]
