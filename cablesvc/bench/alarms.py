@@ -4,8 +4,8 @@ Synthetic residuals (measured - predicted) at ``rate_hz`` (default 1 kHz) for ``
 cables: a per-cable bias uniform in +-0.5 N (what a good model leaves, learned as the
 baseline during the warm-up) plus Gaussian sensor noise of ``noise_n`` (default 0.1 N),
 white, or with ``--noise-filter-hz F`` through a first-order low-pass filter of cut-off F
-(a load-cell amplifier's; its std stays ``noise_n``). Six runs per seed, each through the detectors' ``update_batch`` (bit-identical to the
-per-tick path the daemon uses):
+(a load-cell amplifier's; its std stays ``noise_n``). Six runs per seed, each through the
+detectors' ``update_batch`` (bit-identical to the per-tick path the daemon uses):
 
 - **noise only** for ``hours`` (default one hour, 3.6 M ticks), through drift and spread:
   every raise is a false alarm;
