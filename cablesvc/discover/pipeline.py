@@ -316,6 +316,14 @@ class Discovery:
         for (n, words), cs in refused.items():
             ref = self.options["model_form_refused"]
             ps = ", ".join(f"{ref[f'{n}@{c}']['p']:.2g}" for c in cs)
+            sig = ref[f"{n}@{cs[0]}"].get("signature")
+            if sig:
+                lines.append(f"not named: {n} on cable{'s' if len(cs) > 1 else ''} {', '.join(map(str, cs))}; it passed "
+                             f"the screen, but {words} explains {'those cables' if len(cs) > 1 else 'that cable'} "
+                             f"about as well held out (the whole term better at block-level p = {ps}, not below "
+                             f"{self.options['alpha']:g}): its own variable ({sig['variable']}) carries no evidence, "
+                             "and what the rest of it explains is the baseline's model form, not a concealed effect")
+                continue
             lines.append(f"not named: {n} on cable{'s' if len(cs) > 1 else ''} {', '.join(map(str, cs))}; it passed "
                          f"the screen, but the recalibration with {words} explains "
                          f"{'those cables' if len(cs) > 1 else 'that cable'} about as well held out (the term better "
@@ -414,6 +422,7 @@ class Discovery:
             # the recalibration would in their place, and those that do (BlockScreen step 4)
             "model_form_refused": self.options.get("model_form_refused", {}),
             "model_form_confirmed": self.options.get("model_form_confirmed", {}),
+            "own_variable_tests": self.options.get("own_variable_tests", {}),
             "equilibrium": self.equilibrium,
             "detection_limits": self.detection,
             "mode": self.options.get("mode", "exact"),
@@ -1033,6 +1042,7 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                 "joint_tests": {f"{n}@{c}": dict(v) for (n, c), v in sel.joint.items()}, "tries": tries,
                 "model_form_confirmed": {f"{n}@{c}": dict(v) for (n, c), v in sel.confirmed.items()},
                 "model_form_refused": {f"{n}@{c}": dict(v) for (n, c), v in sel.refused.items()},
+                "own_variable_tests": {f"{n}@{c}": dict(v) for (n, c), v in sel.own_variable.items()},
                 "share_min": screen.share_min, "gain_min": screen.gain_min,
                 "unexplained_floor_noise_var": floor.tolist(), "typical_excess_noise_var": typical.tolist(),
                 "travel_probe": {str(c): v for c, v in probes.items()},

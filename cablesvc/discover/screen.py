@@ -133,6 +133,17 @@ and a term there can explain 90 % of what the recalibration without the loop lea
    Bouc-Wen truth a loop the gate missed left on some cables a force that fades over the
    first moves, which a sag took on controls; the state at the start fades as a settling
    does and took true temperature cables (docs/discovery.md, "A loop the gate left out").
+5. a term whose columns are of two kinds (``Term.signature``) must owe its gain to the
+   columns of its own explaining variable: the pulley term is bearing friction, the
+   wrap-angle load times the direction of sliding over the wheel (``mu``), beside a
+   stiffness linear in the wrap angle (``k_alpha``). The cable's model with the whole term
+   is tested against the same model with the term's other columns alone (per-block gains,
+   one-sided Wilcoxon at ``alpha``, again an intersection-union condition), and the term
+   stays only where the whole does significantly better. A stiffness that varies with the
+   pose is what a baseline of another backbone leaves too: on the Bouc-Wen truth's controls
+   (seed 223606) ``k_alpha`` did all the work of every false pulley finding checked and
+   ``mu`` none, while on a true pulley friction the term without ``mu`` lost half its
+   gain or all of it (docs/discovery.md, "A pulley named on its friction").
 
 The price, said plainly: an effect that the recalibration can mimic over the recording
 (sag, and much of creep over a 30 s recording: a tension-dependent stiffness and a slow
@@ -197,9 +208,14 @@ class ScreenResult(Selection):
     #: (term, cable) kept and refused by step 4: the block test of the cable's model with
     #: the term against the model with a model-form alternative of the nuisance in its place
     #: (``gain`` [noise variances] how much better the term does, ``p``, ``alternative``:
-    #: the alternative's design key)
+    #: the alternative's design key); ``refused`` also holds those step 5 refused (their
+    #: ``signature`` says which columns were left out)
     confirmed: dict = field(default_factory=dict)
     refused: dict = field(default_factory=dict)
+    #: (term, cable) of the terms kept until step 5: the block test of the cable's model with
+    #: the whole term against the model with the term without its ``signature`` columns
+    #: (``passed``: its own variable carries evidence; refused ones are in ``refused`` too)
+    own_variable: dict = field(default_factory=dict)
 
 
 class BlockScreen:
@@ -462,6 +478,14 @@ class BlockScreen:
         #    tests that named the term (an intersection-union test: no further correction)
         refused: dict[tuple[str, int], dict[str, Any]] = {}
         confirmed: dict[tuple[str, int], dict[str, Any]] = {}
+
+        def drop(t: Term, c: int, i: int) -> None:
+            confirmed.pop((t.name, c), None)     # an earlier alternative's
+            del kept[c][i], hk[c][i]
+            steps[t.name].remove(c)
+            if not steps[t.name]:
+                del steps[t.name]
+
         for alt in alternatives or []:
             for c in range(m):
                 for t in [u for u in kept[c] if (u.name, c) not in evidence
@@ -476,11 +500,28 @@ class BlockScreen:
                     vs["passed"] = bool(vs["p"] < self.alpha)
                     (confirmed if vs["passed"] else refused)[(t.name, c)] = vs
                     if not vs["passed"]:
-                        confirmed.pop((t.name, c), None)     # an earlier alternative's
-                        del kept[c][i], hk[c][i]
-                        steps[t.name].remove(c)
-                        if not steps[t.name]:
-                            del steps[t.name]
+                        drop(t, c, i)
+        # 5. a term whose columns are of two kinds (``Term.signature``: the pulley's bearing
+        #     friction beside its wrap-angle stiffness) must owe its gain to the columns of
+        #     its own explaining variable: the cable's model with the whole term against the
+        #     same model with the term's other columns alone, per-block gains, one-sided
+        #     Wilcoxon at ``alpha``
+        own: dict[tuple[str, int], dict[str, Any]] = {}
+        for c in range(m):
+            for t in [u for u in kept[c] if u.signature and (u.name, c) not in evidence]:
+                i = kept[c].index(t)
+                reduced = t.without_signature()
+                e_red = loo_errors(s, c, r[:, c], base + kept[c][:i] + [reduced] + kept[c][i + 1:], hb + hk[c],
+                                   blocks, cache)
+                vs = block_gain_test(e_red, kept_errors(c), noise[c])
+                vs["alternative"] = reduced.design_key
+                vs["alternative_words"] = f"the term without {', '.join(t.signature)}"
+                vs["signature"] = {"params": list(t.signature), "variable": t.variable}
+                vs["passed"] = bool(vs["p"] < self.alpha)
+                own[(t.name, c)] = vs
+                if not vs["passed"]:
+                    refused[(t.name, c)] = vs
+                    drop(t, c, i)
         for c in range(m):
             fits[c] = fit_terms(s, c, r[:, c], base + kept[c], train, hypers=hb + hk[c], cache=cache)
         base_mse = {c: float(np.mean(np.concatenate(e_base[c]) ** 2)) if e_base[c] else 0.0 for c in range(m)}
@@ -489,4 +530,4 @@ class BlockScreen:
               for n, cs in steps.items()]
         return ScreenResult(fits=fits, steps=st, baseline_valid_mse=base_mse, base=tuple(t.name for t in base),
                             tests=tests, joint=joint, tries=tries, blocks=blocks, typical=typ,
-                            confirmed=confirmed, refused=refused)
+                            confirmed=confirmed, refused=refused, own_variable=own)

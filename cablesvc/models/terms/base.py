@@ -125,6 +125,13 @@ class Term:
     #: the rope's loop with its unknown state at the start settles too, so such a term is
     #: not asked to beat that state (``Recalibration(spare_time=True)``)
     settles: bool = False
+    #: the linear parameters whose columns carry the term's own explaining variable, where
+    #: the term also has columns of another kind (the pulley: its bearing friction ``mu``,
+    #: the wrap-angle load times the direction of sliding, beside a stiffness that varies
+    #: with the wrap angle). Discovery names such a term only where these columns carry
+    #: evidence beside the rest of it (:meth:`without_signature`); () for a term all of
+    #: whose columns follow its own variable
+    signature: tuple[str, ...] = ()
     #: True for a term that delays the elongation by its hyper-parameter ``tau``: the
     #: other terms on the cable are then built on the delayed signals (:meth:`Signals.delayed`)
     delays_input: bool = False
@@ -137,9 +144,45 @@ class Term:
         base = np.zeros(s.n) if d.fixed is None else d.fixed
         return base + (d.X[:, 0] if d.p else 0.0)
 
+    def without_signature(self) -> "Term":
+        """This term with its :attr:`signature` columns left out (held at 0): what is left
+        when its own explaining variable is taken away (the pulley term's wrap-angle
+        stiffness without its bearing friction). The yardstick the term must beat."""
+        return _WithoutSignature(self)
+
     def physical(self, params: dict[str, float], h: dict[str, float], s: Signals, c: int) -> dict[str, Any]:
         """Physical parameters with units for the report (default: the fitted ones)."""
         return {**{k: v for k, v in params.items()}, **h}
+
+
+class _WithoutSignature(Term):
+    """:meth:`Term.without_signature`: the same term, its signature columns held at 0
+    (same name, hyper-parameters and nuisance columns; a design key of its own)."""
+
+    def __init__(self, term: Term):
+        self.term = term
+        self.name = term.name
+        self.label = f"{term.label} without {', '.join(term.signature)}"
+        self.params = tuple(n for n in term.params if n not in term.signature)
+        self.hypers = term.hypers
+        self.nuisance = term.nuisance
+        self.held = term.held
+        self.owns_nuisance = term.owns_nuisance
+        self.delays_input = term.delays_input
+        self.n_hyper = term.n_hyper
+
+    @property
+    def design_key(self) -> str:
+        return f"{self.term.design_key}-without-{'-'.join(self.term.signature)}"
+
+    def applies(self, s: Signals, c: int) -> bool:
+        return self.term.applies(s, c)
+
+    def grid(self, s: Signals) -> list[dict[str, float]]:
+        return self.term.grid(s)
+
+    def design(self, s: Signals, c: int, h: dict[str, float]) -> Design:
+        return self.term.design(s, c, h).without(self.term.signature)
 
 
 LIBRARY: dict[str, Term] = {}

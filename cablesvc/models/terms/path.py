@@ -40,6 +40,11 @@ class PulleyFriction(Term):
     n_hyper = 1
     nuisance = ("k0",)
     follows_direction = True
+    #: its own explaining variable is the direction of sliding over the wheel: a stiffness
+    #: that varies with the wrap angle alone is a pose-dependent stiffness, which the
+    #: baseline's own model form also draws (measured on the Bouc-Wen truth's controls:
+    #: k_alpha did all the work of every false pulley finding, mu none)
+    signature = ("mu",)
 
     def applies(self, s, c):
         return bool(s.has_pulley[c]) and float(np.max(s.wrap[:, c])) > 1e-6
