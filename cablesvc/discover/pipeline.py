@@ -317,18 +317,15 @@ class Discovery:
             ref = self.options["model_form_refused"]
             ps = ", ".join(f"{ref[f'{n}@{c}']['p']:.2g}" for c in cs)
             sig = ref[f"{n}@{cs[0]}"].get("signature")
-            if sig:
-                lines.append(f"not named: {n} on cable{'s' if len(cs) > 1 else ''} {', '.join(map(str, cs))}; it passed "
-                             f"the screen, but {words} explains {'those cables' if len(cs) > 1 else 'that cable'} "
-                             f"about as well held out (the whole term better at block-level p = {ps}, not below "
-                             f"{self.options['alpha']:g}): its own variable ({sig['variable']}) carries no evidence, "
-                             "and what the rest of it explains is the baseline's model form, not a concealed effect")
-                continue
+            # step 5 (the term without its own variable's columns) or step 4 (a model-form
+            # alternative of the recalibration in the term's place)
+            rival, whole, why = ((words, "the whole term", f"its own variable ({sig['variable']}) carries no "
+                                  "evidence, and what the rest of it explains is the baseline's model form")
+                                 if sig else (f"the recalibration with {words}", "the term", "the baseline's model form"))
             lines.append(f"not named: {n} on cable{'s' if len(cs) > 1 else ''} {', '.join(map(str, cs))}; it passed "
-                         f"the screen, but the recalibration with {words} explains "
-                         f"{'those cables' if len(cs) > 1 else 'that cable'} about as well held out (the term better "
-                         f"at block-level p = {ps}, not below {self.options['alpha']:g}): the baseline's model form, "
-                         "not a concealed effect")
+                         f"the screen, but {rival} explains {'those cables' if len(cs) > 1 else 'that cable'} "
+                         f"about as well held out ({whole} better at block-level p = {ps}, not below "
+                         f"{self.options['alpha']:g}): {why}, not a concealed effect")
         for c in rc.get("cables", []):
             d = rc["per_cable"][str(c)]
             lines.append(f"the baseline is off by {d['rms_N']:.2g} N RMS on cable {c} (block-level p = {d['p']:.2g}); "
