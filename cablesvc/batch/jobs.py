@@ -32,6 +32,8 @@ import time
 from datetime import datetime, timezone
 from typing import Any, Callable
 
+from cablesvc.threads import blas_threads, one_blas_thread
+
 __all__ = ["JOBS", "JOB_MODULES", "START_TIME_KEY", "blas_threads", "discover_job", "identify_job", "import_job_modules",
            "one_blas_thread", "recording_start", "worker_version"]
 
@@ -204,23 +206,6 @@ def identify_job(path: str, opts: dict[str, Any]) -> dict[str, Any]:
                            "params_toml": fit.params.to_toml()}))
 
     return _run(path, work)
-
-
-def one_blas_thread() -> None:
-    """Limit the BLAS/OpenMP libraries loaded in this process to one thread each. A worker
-    forked from the CLI's process inherits the BLAS library already loaded there with one
-    thread per core (the nanny's ``OMP_NUM_THREADS=1`` is read only when the library
-    loads), so two workers on two cores would each start two BLAS threads: run once on
-    every forked worker."""
-    from threadpoolctl import threadpool_limits
-    threadpool_limits(limits=1)
-
-
-def blas_threads() -> int:
-    """The most threads any BLAS/OpenMP library loaded in this process would use (0: none
-    loaded); the fleet runner reports it per worker."""
-    from threadpoolctl import threadpool_info
-    return max((int(i.get("num_threads", 0)) for i in threadpool_info()), default=0)
 
 
 def import_job_modules(command: str) -> None:

@@ -330,6 +330,17 @@ def _realistic_row(spec: Any, seed: int) -> dict[str, Any]:
             "robot_seconds": dict(sr.seconds)}
 
 
+def worker_pool(workers: int):
+    """The bench's pool of ``workers`` spawned processes, each limited to one BLAS thread:
+    two workers with two spinning OpenBLAS threads each on two cores ran about ten times
+    slower (:mod:`cablesvc.threads`)."""
+    import concurrent.futures as cf
+    import multiprocessing as mp
+    from cablesvc.threads import one_blas_thread
+    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                                  initializer=one_blas_thread)
+
+
 def _realistic_rows(plan: list[Any], seed: int, workers: int, progress: Optional[Any]):
     """Yield the rows of ``plan`` in plan order, from ``workers`` processes (1: this one)."""
     def note(row: dict[str, Any], i: int) -> None:
@@ -343,10 +354,9 @@ def _realistic_rows(plan: list[Any], seed: int, workers: int, progress: Optional
             yield row
         return
     import concurrent.futures as cf
-    import multiprocessing as mp
     # every case is independent and deterministic given its spec, so the rows (and the result)
     # do not depend on the number of workers; each process calibrates the robots it meets once
-    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+    with worker_pool(workers) as pool:
         futs = [pool.submit(_realistic_row, spec, seed) for spec in plan]
         done = 0
         for f in cf.as_completed(futs):

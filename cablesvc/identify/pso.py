@@ -38,6 +38,7 @@ import numpy as np
 
 from cablesvc.identify.bounds import parse_bounds
 from cablesvc.identify.result import IdentifyResult
+from cablesvc.threads import one_blas_thread
 
 __all__ = ["pso", "pso_lockstep", "normalized_mse", "initial_population", "Swarm"]
 
@@ -93,7 +94,7 @@ class _Evaluator:
                 except Exception as e:
                     raise TypeError(f"workers={self.workers} sends fun to worker processes, so it must be picklable "
                                     f"(a module-level function or an instance of a module-level class): {e}") from None
-                self.pool = ProcessPoolExecutor(max_workers=self.workers)
+                self.pool = ProcessPoolExecutor(max_workers=self.workers, initializer=one_blas_thread)
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         p = X.shape[0]
