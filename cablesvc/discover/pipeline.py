@@ -237,6 +237,20 @@ class Discovery:
     def significant(self) -> bool:
         return bool(self.findings)
 
+    def rivals(self, cables: list[int]) -> list[tuple[str, int, dict[str, Any]]]:
+        """The terms that passed the screen on ``cables`` but were refused because a
+        model-form alternative of the recalibration explains the cable about as well
+        (step 4 of :class:`~cablesvc.discover.screen.BlockScreen`; not the own-variable
+        step), as (term, cable, test). Where such a cable is also reported unexplained, the
+        recording cannot tell a concealed effect from the baseline's model form there, and
+        the report says so instead of calling it either."""
+        out = []
+        for k, v in (self.options.get("model_form_refused") or {}).items():
+            n, c = k.split("@")
+            if int(c) in cables and not v.get("signature"):
+                out.append((n, int(c), v))
+        return out
+
     def reduction(self, cables: Optional[list[int]] = None) -> float:
         """Relative drop of the test RMS residual over ``cables`` (default: all), 0..1."""
         cs = list(range(self.residual.shape[1])) if cables is None else cables
@@ -263,6 +277,10 @@ class Discovery:
         for u in self.unexplained:
             what = (f"repeats every {u['period_m']:.3g} m of the cable's travel: a turning part?" if "period_m" in u
                     else f"follows {u['variable']}, peak {u['peak_hz']:.2g} Hz")
+            amb = sorted({n for n, _c, _v in self.rivals(u["cables"])})
+            if amb:
+                what += (f"; {' or '.join(amb)} explain{'s' if len(amb) == 1 else ''} it, and so does the "
+                         "baseline's model form: cannot tell")
             parts.append(f"unexplained residual remains on cable{'s' if len(u['cables']) > 1 else ''} "
                          f"{cs(u['cables'])} ({what})")
         if not self.findings and not self.unexplained:
@@ -309,6 +327,7 @@ class Discovery:
                          f"block-level p < {lp['alpha']:g}): "
                          "it is part of the recalibration on every cable, the baseline's model form, not a "
                          "concealed effect")
+        unexplained_cables = {int(c) for u in self.unexplained for c in u.get("cables", [])}
         refused: dict[tuple[str, str], list[int]] = {}
         for k, v in (self.options.get("model_form_refused") or {}).items():
             n, c = k.split("@")
@@ -322,10 +341,17 @@ class Discovery:
             rival, whole, why = ((words, "the whole term", f"its own variable ({sig['variable']}) carries no "
                                   "evidence, and what the rest of it explains is the baseline's model form")
                                  if sig else (f"the recalibration with {words}", "the term", "the baseline's model form"))
+            # where the cable's residual is also reported unexplained (below), the recording
+            # cannot tell which of the two it is, and the sentence does not say
+            open_cs = [c for c in cs if not sig and c in unexplained_cables]
+            verdict = (f"{why}, not a concealed effect" if not open_cs else
+                       f"the recording cannot tell a concealed {n} from the baseline's model form on "
+                       f"cable{'s' if len(open_cs) > 1 else ''} {', '.join(map(str, open_cs))}, whose residual "
+                       "is reported unexplained")
             lines.append(f"not named: {n} on cable{'s' if len(cs) > 1 else ''} {', '.join(map(str, cs))}; it passed "
                          f"the screen, but {rival} explains {'those cables' if len(cs) > 1 else 'that cable'} "
                          f"about as well held out ({whole} better at block-level p = {ps}, not below "
-                         f"{self.options['alpha']:g}): {why}, not a concealed effect")
+                         f"{self.options['alpha']:g}): {verdict}")
         for c in rc.get("cables", []):
             d = rc["per_cable"][str(c)]
             lines.append(f"the baseline is off by {d['rms_N']:.2g} N RMS on cable {c} (block-level p = {d['p']:.2g}); "
@@ -345,9 +371,14 @@ class Discovery:
                              "library has that law: look for a turning part in the cable's path that runs out "
                              "of round (winch drum, pulley)")
                 continue
+            amb = self.rivals(u["cables"])
+            tail = "".join(f"; {n} explains cable {c} too, about as well as the recalibration with "
+                           f"{v.get('alternative_words', v.get('alternative', ''))} (the term better at block-level "
+                           f"p = {v['p']:.2g}): the recording cannot tell which" for n, c, v in amb)
             lines.append(f"unexplained residual remains on cables {', '.join(map(str, u['cables']))}: "
                          f"{u['excess_rms_N']:.2g} N RMS beyond the noise, follows {u['variable']} "
-                         f"(eta2 {u['eta2']:.2f}), spectrum peak {u['peak_hz']:.3g} Hz (block-level p = {u['p']:.2g})")
+                         f"(eta2 {u['eta2']:.2f}), spectrum peak {u['peak_hz']:.3g} Hz (block-level p = {u['p']:.2g})"
+                         + tail)
         if self.detection:
             lines.append("what this recording cannot show beside the baseline's recalibration (detection limits; "
                          "the first figure is a lower bound, the second an estimate for a typical cable):")
@@ -414,7 +445,9 @@ class Discovery:
                          for f in self.findings],
             "verdict": self.verdict(),
             "recalibration": self.recalibration,
-            "unexplained": self.unexplained,
+            "unexplained": [dict(u) | {"cannot_tell": [{"term": n, "cable": c, "alternative": v.get("alternative"),
+                                                        "p": v.get("p")} for n, c, v in self.rivals(u["cables"])]}
+                            for u in self.unexplained],
             # terms that passed the screen but do no better than a model-form alternative of
             # the recalibration would in their place, and those that do (BlockScreen step 4)
             "model_form_refused": self.options.get("model_form_refused", {}),
