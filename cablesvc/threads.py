@@ -2,9 +2,11 @@
 
 numpy's OpenBLAS starts one thread per core in every process that loads it. A pool of k
 worker processes on k cores then runs k x k BLAS threads, and OpenBLAS threads that wait
-for work spin: on this project's 2-core machine, the realistic discovery bench with two
-workers took 79 s for one case's discovery that takes 7.0 s in a process alone (seed 301511,
-Bouc-Wen truth, control 80; 2026-11-28, numpy 2.4.6 with OpenBLAS 0.3.31). Every pool of
+for work spin. On this project's 2-core machine (2026-11-28, numpy 2.4.6 with OpenBLAS
+0.3.31) the realistic discovery bench, two workers, seed 301511, Bouc-Wen truth, had not
+finished after 18 minutes alone; with one thread per worker it took 504 s. One process alone
+gains nothing from a second thread there (one case's discovery: 7.4 s with two, 7.0 s
+with one). Every pool of
 processes that each do numpy work therefore limits each worker to one BLAS thread, at its
 start (:func:`one_blas_thread` as the pool's initializer, or on a Dask worker by
 :mod:`cablesvc.batch.worker_setup`).

@@ -3,6 +3,8 @@ cores that each start one OpenBLAS thread per core spin against each other."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from cablesvc.threads import blas_threads, one_blas_thread
@@ -38,5 +40,4 @@ def test_one_blas_thread_limits_this_process_and_what_it_loads_later(monkeypatch
     with threadpool_limits(limits=None):
         one_blas_thread()
         assert blas_threads() == 1
-        import os
         assert os.environ["OPENBLAS_NUM_THREADS"] == "1"

@@ -9,13 +9,13 @@ from typing import Any
 
 from distributed import WorkerPlugin
 
-from cablesvc.batch.jobs import one_blas_thread
+from cablesvc.threads import one_blas_thread
 
 __all__ = ["OneBlasThread"]
 
 
 class OneBlasThread(WorkerPlugin):
-    """:func:`cablesvc.batch.jobs.one_blas_thread` on every worker, a restarted one too."""
+    """:func:`cablesvc.threads.one_blas_thread` on every worker, a restarted one too."""
 
     name = "cablesvc-one-blas-thread"
 

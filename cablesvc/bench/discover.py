@@ -332,8 +332,8 @@ def _realistic_row(spec: Any, seed: int) -> dict[str, Any]:
 
 def worker_pool(workers: int):
     """The bench's pool of ``workers`` spawned processes, each limited to one BLAS thread:
-    two workers with two spinning OpenBLAS threads each on two cores ran about ten times
-    slower (:mod:`cablesvc.threads`)."""
+    with two spinning OpenBLAS threads each, two workers on two cores had not finished
+    in 18 minutes a run that takes 504 s this way (:mod:`cablesvc.threads`)."""
     import concurrent.futures as cf
     import multiprocessing as mp
     from cablesvc.threads import one_blas_thread
