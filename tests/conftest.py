@@ -12,15 +12,26 @@ the test sources for data-conditioned skips that do not fire on a machine that h
 subprocesses, and with ``PYTHONDONTWRITEBYTECODE`` set (as on the development and CI
 machines) an editable install's modules were compiled again in every one of them
 (tests/test_robustness_cli.py: 57 s without the cache, 40 s with it).
+
+The suite runs in pytest-xdist worker processes (``addopts`` in pyproject.toml), two on a
+2-core machine. Each worker, and every process a test starts from it, uses one BLAS thread
+(:func:`cablesvc.threads.one_blas_thread`, the rule of the project's own worker pools): two
+workers that each start one OpenBLAS thread per core spin against each other.
 """
 
 from __future__ import annotations
 
 import compileall
+import os
 import re
 from pathlib import Path
 
 import pytest
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # before any test module loads numpy, so that its OpenBLAS starts with one thread
+    from cablesvc.threads import one_blas_thread
+    one_blas_thread()
 
 _DATA_WORD = r"(?:data(?:set)?s?|benchmark|files?|recordings?|[\w./-]*\.(?:h5|hdf5|mcap|csv|npz|npy|mat|json|toml))"
 _MISSING_WORD = (r"(?:not found|not present|missing|absent|unavailable|not available|does not exist|"
