@@ -375,10 +375,13 @@ class Discovery:
             tail = "".join(f"; {n} explains cable {c} too, about as well as the recalibration with "
                            f"{v.get('alternative_words', v.get('alternative', ''))} (the term better at block-level "
                            f"p = {v['p']:.2g}): the recording cannot tell which" for n, c, v in amb)
+            leads = "".join(f"; on cable {c} {v['term']} explains {100 * v['share']:.0f} % of it held out "
+                            f"(block-level p = {v['p']:.2g}), too little to name it"
+                            for c, v in sorted(u.get("leads", {}).items()))
             lines.append(f"unexplained residual remains on cables {', '.join(map(str, u['cables']))}: "
                          f"{u['excess_rms_N']:.2g} N RMS beyond the noise, follows {u['variable']} "
                          f"(eta2 {u['eta2']:.2f}), spectrum peak {u['peak_hz']:.3g} Hz (block-level p = {u['p']:.2g})"
-                         + tail)
+                         + leads + tail)
         if self.detection:
             lines.append("what this recording cannot show beside the baseline's recalibration (detection limits; "
                          "the first figure is a lower bound, the second an estimate for a typical cable):")
@@ -803,6 +806,28 @@ def discover_signals(rec: Any, rob: Robot, base: ModelParams, s: Signals, *, ter
 
 #: family-wise error rate of the block-level tests (Holm over all tries)
 ALPHA = 0.05
+
+
+def partial_leads(tests: dict[tuple[str, int], dict[str, Any]], refused: dict[tuple[str, int], Any],
+                  kept: dict[int, list[Any]], un_test: dict[int, dict[str, float]], floor: np.ndarray,
+                  reported: set[int]) -> dict[int, dict[str, Any]]:
+    """Cables left unexplained although the excess test (median-like, on blocks) missed them:
+    the model leaves a mean held-out excess above ``floor`` [noise variances] there, and the
+    screen's test of a term not named on the cable (nor refused for a model-form
+    alternative) passed at ``ALPHA`` after Holm over all its tries with a held-out gain of
+    at least ``GAIN_FURTHER`` noise variances. Per cable the strongest such term:
+    {"term", "gain" [noise variances], "share" (of the excess beyond the noise), "p"}."""
+    out: dict[int, dict[str, Any]] = {}
+    for (n, c), v in tests.items():
+        if c in reported or (n, c) in refused or any(u.name == n for u in kept.get(c, [])):
+            continue
+        if float(un_test[c]["excess"]) < float(floor[c]):
+            continue
+        if v.get("p_holm", 1.0) < ALPHA and v["gain"] >= GAIN_FURTHER:
+            if c not in out or v["gain"] > out[c]["gain"]:
+                out[c] = {"term": n, "gain": float(v["gain"]), "share": float(v["excess_share"]),
+                          "p": float(v["p_holm"])}
+    return out
 #: the held-out residual left after the model must exceed the noise variance by this many
 #: noise variances (RMS > sqrt(1 + floor) x noise) for "unexplained residual remains" ...
 UNEXPLAINED_FLOOR = 1.0
@@ -1035,6 +1060,17 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
                            and v["excess_share"] >= PERIODIC_SHARE)
     periodic = [c for c, v in probes.items() if v["passed"]]
     un_cables = [c for c in range(m) if un_adj[c] < ALPHA and c not in periodic]
+    # the excess test reads the median block: an effect that the model leaves in a few
+    # blocks (where the pulley's wrap angle or the drum's turn moves most) can leave 11 noise
+    # variances on average and fewer than the floor on a third of the blocks (seed 362880,
+    # single 14: a pulley friction on cable 6, block-level p = 0.017, 0.14 after Holm over
+    # the cables; the test RMSE after the model 6 x the noise). Such a cable is reported too
+    # where its mean held-out excess is above the floor and a term of the library shows,
+    # at the screen's family-wise level, that what is left there is structured and predictable
+    # (held-out gain >= GAIN_FURTHER), yet explains too little of it to be named: the lead
+    # is given with its share. Terms refused for a model-form alternative are no such lead
+    partial = partial_leads(tests, sel.refused, kept, un_test, floor, set(un_cables) | set(periodic))
+    un_cables = sorted(set(un_cables) | set(partial))
     # what locate finds on every cable reported: the state variable its residual follows
     # best, its spectrum peak and its excess beyond the noise
     reported = periodic + un_cables
@@ -1058,7 +1094,9 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
             "eta2": float(np.mean([reg[c][0]["eta2"] for c in cs])),
             "peak_hz": float(np.median([peak[c] for c in cs])),
             "excess_rms_N": float(np.median([excess[c] for c in cs])),
-            "p": float(max(un_adj[c] for c in cs))})
+            # a cable reported on its lead carries the lead's test
+            "p": float(max(partial[c]["p"] if c in partial else un_adj[c] for c in cs)),
+            "leads": {str(c): partial[c] for c in cs if c in partial}})
     # what the recording cannot show beside the recalibration: per candidate term, the
     # least effect the screen would name on each cable, where the recalibrated baseline
     # leaves what it leaves on the median cable (its model form: a cable's own excess
