@@ -806,28 +806,6 @@ def discover_signals(rec: Any, rob: Robot, base: ModelParams, s: Signals, *, ter
 
 #: family-wise error rate of the block-level tests (Holm over all tries)
 ALPHA = 0.05
-
-
-def partial_leads(tests: dict[tuple[str, int], dict[str, Any]], refused: dict[tuple[str, int], Any],
-                  kept: dict[int, list[Any]], un_test: dict[int, dict[str, float]], floor: np.ndarray,
-                  reported: set[int]) -> dict[int, dict[str, Any]]:
-    """Cables left unexplained although the excess test (median-like, on blocks) missed them:
-    the model leaves a mean held-out excess above ``floor`` [noise variances] there, and the
-    screen's test of a term not named on the cable (nor refused for a model-form
-    alternative) passed at ``ALPHA`` after Holm over all its tries with a held-out gain of
-    at least ``GAIN_FURTHER`` noise variances. Per cable the strongest such term:
-    {"term", "gain" [noise variances], "share" (of the excess beyond the noise), "p"}."""
-    out: dict[int, dict[str, Any]] = {}
-    for (n, c), v in tests.items():
-        if c in reported or (n, c) in refused or any(u.name == n for u in kept.get(c, [])):
-            continue
-        if float(un_test[c]["excess"]) < float(floor[c]):
-            continue
-        if v.get("p_holm", 1.0) < ALPHA and v["gain"] >= GAIN_FURTHER:
-            if c not in out or v["gain"] > out[c]["gain"]:
-                out[c] = {"term": n, "gain": float(v["gain"]), "share": float(v["excess_share"]),
-                          "p": float(v["p_holm"])}
-    return out
 #: the held-out residual left after the model must exceed the noise variance by this many
 #: noise variances (RMS > sqrt(1 + floor) x noise) for "unexplained residual remains" ...
 UNEXPLAINED_FLOOR = 1.0
@@ -850,6 +828,29 @@ SHARE_ROBOT = 0.5
 #: ... and its least gain there, as of any term named beside another on one cable [noise
 #: variances; RMS sqrt(3) x the noise]
 GAIN_FURTHER = 3.0
+
+
+def partial_leads(tests: dict[tuple[str, int], dict[str, Any]], refused: dict[tuple[str, int], Any],
+                  kept: dict[int, list[Any]], un_test: dict[int, dict[str, float]], floor: np.ndarray,
+                  reported: set[int]) -> dict[int, dict[str, Any]]:
+    """Cables left unexplained although the excess test (median-like, on blocks) missed them:
+    the model leaves a mean held-out excess above ``floor`` [noise variances] there, and the
+    screen's test of a term not named on the cable (nor refused there by the screen's
+    model-form alternatives or its own-variable test, steps 4 and 5) passed at ``ALPHA``
+    after Holm over all its tries with a held-out gain of at least ``GAIN_FURTHER`` noise
+    variances. Per cable the strongest such term:
+    {"term", "gain" [noise variances], "share" (of the excess beyond the noise), "p"}."""
+    out: dict[int, dict[str, Any]] = {}
+    for (n, c), v in tests.items():
+        if c in reported or (n, c) in refused or any(u.name == n for u in kept.get(c, [])):
+            continue
+        if float(un_test[c]["excess"]) < float(floor[c]):
+            continue
+        if v.get("p_holm", 1.0) < ALPHA and v["gain"] >= GAIN_FURTHER:
+            if c not in out or v["gain"] > out[c]["gain"]:
+                out[c] = {"term": n, "gain": float(v["gain"]), "share": float(v["excess_share"]),
+                          "p": float(v["p_holm"])}
+    return out
 
 
 def _finding(t: Term, cables: list[int], s: Signals, r: np.ndarray, final: dict[int, Fit], full: dict[int, Fit],
@@ -1068,7 +1069,7 @@ def _discover_identified(rec, rob, base, s, r, loc, noise, terms, selector, trai
     # where its mean held-out excess is above the floor and a term of the library shows,
     # at the screen's family-wise level, that what is left there is structured and predictable
     # (held-out gain >= GAIN_FURTHER), yet explains too little of it to be named: the lead
-    # is given with its share. Terms refused for a model-form alternative are no such lead
+    # is given with its share. Terms the screen refused on the cable (steps 4, 5) are no such lead
     partial = partial_leads(tests, sel.refused, kept, un_test, floor, set(un_cables) | set(periodic))
     un_cables = sorted(set(un_cables) | set(partial))
     # what locate finds on every cable reported: the state variable its residual follows
