@@ -382,6 +382,12 @@ class Daemon(ParamsReload, SnapshotState):
             np.copyto(self._x_last, out.elongation)
         events = self.alarms.on_tick(tick.t, tick.seq, out)
         payload = forces_payload(self.name, tick.seq, out, tick.stamp_ns, self.geom.cable_names)
+        # counted before it is published: a status query answered from another thread
+        # between the two then never reports fewer ticks than the forces a subscriber
+        # already holds (tests/test_fleet.py saw 299 ticks beside 300 forces under load)
+        s.ticks += 1
+        s.last_seq = tick.seq
+        s.last_t = tick.t
         pub = self.publisher
         try:
             pub.publish_forces(payload)
@@ -402,9 +408,6 @@ class Daemon(ParamsReload, SnapshotState):
         lat_us = (now - tick.stamp_ns) // 1000
         if lat_us >= 1:
             self.hist.record_value(min(lat_us, 60_000_000))
-        s.ticks += 1
-        s.last_seq = tick.seq
-        s.last_t = tick.t
         s.rate_window.append(now)
         if self.recorder is not None:
             self.recorder.put((tick, payload, alarm_payloads))
