@@ -14,7 +14,10 @@ start (:func:`one_blas_thread` as the pool's initializer, or on a Dask worker by
 
 from __future__ import annotations
 
-__all__ = ["blas_threads", "one_blas_thread"]
+__all__ = ["THREAD_VARS", "blas_threads", "one_blas_thread"]
+
+#: the environment variables the BLAS/OpenMP libraries read for their thread count when they load
+THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def one_blas_thread() -> None:
@@ -24,7 +27,7 @@ def one_blas_thread() -> None:
     (an ``OMP_NUM_THREADS=1`` set afterwards is not read), a spawned worker loads it anew:
     run once on every worker, either way."""
     import os
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    for var in THREAD_VARS:
         os.environ[var] = "1"
     from threadpoolctl import threadpool_limits
     threadpool_limits(limits=1)

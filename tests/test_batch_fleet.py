@@ -177,8 +177,8 @@ def test_default_local_cluster_from_the_command_line(fleet, tmp_path):
     user starts it, in its own process without the suite's one-thread variables
     (tests/conftest.py): in the test's process, already limited, the workers would run one
     thread whatever cablesvc does."""
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    from cablesvc.threads import THREAD_VARS
+    env = {k: v for k, v in os.environ.items() if k not in THREAD_VARS}
     proc = subprocess.run([sys.executable, "-m", "cablesvc", "discover", str(fleet["root"] / "b"),
                            "--report", str(tmp_path / "rep")], capture_output=True, text=True, env=env,
                           timeout=600)

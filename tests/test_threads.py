@@ -10,9 +10,7 @@ import sys
 
 import pytest
 
-from cablesvc.threads import blas_threads
-
-_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+from cablesvc.threads import THREAD_VARS, blas_threads
 
 
 @pytest.fixture
@@ -20,7 +18,7 @@ def unlimited_children(monkeypatch):
     """The test's processes start without the one-thread variables the suite's own workers
     set (tests/conftest.py): a spawned child would inherit them and run one thread whatever
     the pool under test does."""
-    for var in _VARS:
+    for var in THREAD_VARS:
         monkeypatch.delenv(var, raising=False)
 
 
