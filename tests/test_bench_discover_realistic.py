@@ -347,6 +347,11 @@ def test_each_true_effect_is_set_against_the_recordings_detection_limit(robot):
     from cablesvc.bench.discover import _over_need
     assert _over_need(row) == (max(left.values()) >= row["need_noise_var"])
     assert not _over_need({"effect_left_noise_var": {}, "need_noise_var": None})
+    from cablesvc.bench.discover import _hidden
+    assert _hidden(row) == (max(left.values()) < 0.1)
+    assert _hidden({"effect_left_noise_var": {"2": 0.09, "5": 0.02}})
+    assert not _hidden({"effect_left_noise_var": {"2": 0.09, "5": 0.4}})     # one cable shows it
+    assert not _hidden({"effect_left_noise_var": {}, "need_noise_var": None})   # not measured
 
 
 def test_a_drum_running_out_of_round_is_reported_as_a_residual_that_repeats_with_the_travel(robot, control, tmp_path):
