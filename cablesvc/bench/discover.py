@@ -248,8 +248,9 @@ def _over_need(row: dict[str, Any]) -> bool:
 
 #: [noise variances] what the recalibration may leave of an effect's own force on held-out
 #: blocks, on every one of its cables, for the effect to count as hidden by it: RMS under a
-#: third of the noise, against the 0.2-2.4 noise variances the baseline's own model form
-#: leaves on a typical cable of the bench (docs/discovery.md, "Tried and not kept")
+#: third of the noise, against a median of 0.5-0.6 noise variances that the baseline's own
+#: model form leaves on the bench robots' typical cable (docs/discovery.md, "Tried and not
+#: kept")
 HIDDEN_NOISE_VAR = 0.1
 
 
